@@ -1,0 +1,269 @@
+"""
+The driver's configuration: parameter names, defaults, ranges, and validation.
+
+validate() takes the flat parameter dictionary a ROS parameter file gives (`joints`,
+`<joint>.id`, `<joint>.registers.<name>`, ...) and returns a DriverConfig, or raises ConfigError
+naming the offending key. It runs before the bus is touched, so a bad file never moves a servo.
+"""
+
+from dataclasses import dataclass, field
+import math
+from typing import Any, Dict, List, Mapping, Optional, Tuple
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+
+
+class ConfigError(ValueError):
+    """An invalid configuration; key names the parameter at fault."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f'parameter {key!r}: {message}')
+        self.key = key
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One top-level parameter: type, default, unit, description and range."""
+
+    name: str
+    kind: type
+    default: Any
+    description: str
+    unit: str = ''
+    minimum: Optional[float] = None
+    maximum: Optional[float] = None
+    choices: Tuple[Any, ...] = ()
+
+
+BAUDS = tuple(sorted(ct.BAUD_RATES.values()))
+MISSING_SERVO_POLICIES = ('refuse', 'skip')
+
+PARAMS: Tuple[ParamSpec, ...] = (
+    ParamSpec('port', str, '/dev/ttyUSB0',
+              'Serial device of the bus (e.g. /dev/ttyUSB0, /dev/ttyDXL), or "sim" for an '
+              'in-process simulated servo per joint.'),
+    ParamSpec('baud_rate', int, 57600, 'Baud rate of the bus (every servo must use it).',
+              'bit/s', choices=BAUDS),
+    ParamSpec('loop_rate', float, 100.0,
+              'Cycles per second: one packed read of every servo, publish, pending goals '
+              'written. Above what the bus can carry, the node runs as fast as the bus allows.',
+              'Hz', 0.1, 10000.0),
+    ParamSpec('state_rate', float, 10.0, 'Rate of ~/servo_states.', 'Hz', 0.0, 1000.0),
+    ParamSpec('joints', list, [], 'Joint names, in the order of joint_states.'),
+    ParamSpec('torque_on_start', bool, True, 'Torque on when the node activates.'),
+    ParamSpec('torque_off_on_shutdown', bool, True,
+              'Torque off when the node deactivates or shuts down.'),
+    ParamSpec('command_timeout', float, 0.0,
+              'Velocity, current and PWM goals fall back to zero when no command arrived for '
+              'this long (0 = off).', 's', 0.0, 3600.0),
+    ParamSpec('autostart', bool, True, 'Configure and activate at start (lifecycle).'),
+    ParamSpec('latency_timer', float, 16.0,
+              'Latency timer of the USB adapter (16 ms is the Linux FTDI default; 1 ms with our '
+              'udev rule). Used for reply deadlines and the bus-rate report.', 'ms', 0.0, 255.0),
+    ParamSpec('ping_retries', int, 3, 'Pings per servo at configure before it counts as missing.',
+              '', 1, 100),
+    ParamSpec('missing_servo', str, 'refuse',
+              'A configured servo that does not answer at configure: refuse to start, or skip it '
+              'and start without it.', choices=MISSING_SERVO_POLICIES),
+    ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
+              0.0, 100.0),
+    ParamSpec('temperature_error', float, 78.0, 'Diagnostics ERROR above this temperature.',
+              'degC', 0.0, 100.0),
+    ParamSpec('voltage_low', float, 10.0, 'Diagnostics WARN below this input voltage.', 'V',
+              0.0, 30.0),
+    ParamSpec('voltage_high', float, 14.8, 'Diagnostics WARN above this input voltage.', 'V',
+              0.0, 30.0),
+)
+PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in PARAMS}
+JOINT_KEYS = ('id', 'operating_mode', 'torque_constant')
+# Parameters every rclpy node has.
+ROS_PARAMS = frozenset({'use_sim_time', 'start_type_description_service'})
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """One configured joint."""
+
+    name: str
+    servo_id: int
+    operating_mode: str
+    torque_constant_nm_per_a: float = model.DEFAULT_TORQUE_CONSTANT_NM_PER_A
+    registers: Tuple[Tuple[str, int], ...] = ()
+
+    def register_dict(self) -> Dict[str, int]:
+        """Return the configured registers as a dictionary."""
+        return dict(self.registers)
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    """A validated configuration."""
+
+    port: str = '/dev/ttyUSB0'
+    baud_rate: int = 57600
+    loop_rate: float = 100.0
+    state_rate: float = 10.0
+    torque_on_start: bool = True
+    torque_off_on_shutdown: bool = True
+    command_timeout: float = 0.0
+    autostart: bool = True
+    latency_timer: float = 16.0
+    ping_retries: int = 3
+    missing_servo: str = 'refuse'
+    temperature_warn: float = 70.0
+    temperature_error: float = 78.0
+    voltage_low: float = 10.0
+    voltage_high: float = 14.8
+    joints: Tuple[JointConfig, ...] = field(default_factory=tuple)
+
+    def joint(self, name: str) -> JointConfig:
+        """Return the joint with this name."""
+        for joint in self.joints:
+            if joint.name == name:
+                return joint
+        raise KeyError(name)
+
+
+def _check_type(key: str, value: Any, expected: type) -> Any:
+    if expected is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(key, f'expected a number, got {value!r}')
+        if not math.isfinite(float(value)):
+            raise ConfigError(key, f'expected a finite number, got {value!r}')
+        return float(value)
+    if expected is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(key, f'expected an integer, got {value!r}')
+        return value
+    if expected is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(key, f'expected true or false, got {value!r}')
+        return value
+    if expected is str:
+        if not isinstance(value, str):
+            raise ConfigError(key, f'expected a string, got {value!r}')
+        return value
+    if expected is list:
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise ConfigError(key, f'expected a list of strings, got {value!r}')
+        return list(value)
+    raise AssertionError(expected)
+
+
+def _check_spec(spec: ParamSpec, value: Any) -> Any:
+    value = _check_type(spec.name, value, spec.kind)
+    if spec.choices and value not in spec.choices:
+        raise ConfigError(spec.name, f'{value!r} is not one of {list(spec.choices)}')
+    if spec.minimum is not None and value < spec.minimum:
+        raise ConfigError(spec.name, f'{value} is below the minimum {spec.minimum} {spec.unit}'
+                          .rstrip())
+    if spec.maximum is not None and value > spec.maximum:
+        raise ConfigError(spec.name, f'{value} is above the maximum {spec.maximum} {spec.unit}'
+                          .rstrip())
+    return value
+
+
+def validate(params: Mapping[str, Any]) -> DriverConfig:
+    """Return the configuration these parameters describe; ConfigError names the bad key."""
+    values: Dict[str, Any] = {}
+    for spec in PARAMS:
+        if spec.name in params:
+            values[spec.name] = _check_spec(spec, params[spec.name])
+        else:
+            values[spec.name] = spec.default
+    joint_names: List[str] = values.pop('joints')
+    if not joint_names:
+        raise ConfigError('joints', 'no joints configured (a list of joint names is required)')
+    seen_names = set()
+    for name in joint_names:
+        if not name or '.' in name or name.strip() != name:
+            raise ConfigError('joints', f'invalid joint name {name!r}')
+        if name in seen_names:
+            raise ConfigError('joints', f'joint {name!r} is listed twice')
+        seen_names.add(name)
+    _reject_unknown_keys(params, seen_names)
+    joints = []
+    ids: Dict[int, str] = {}
+    for name in joint_names:
+        joint = _joint(params, name)
+        if joint.servo_id in ids:
+            raise ConfigError(f'{name}.id', f'id {joint.servo_id} is already used by joint '
+                              f'{ids[joint.servo_id]!r}')
+        ids[joint.servo_id] = name
+        joints.append(joint)
+    return DriverConfig(joints=tuple(joints), **values)
+
+
+def _reject_unknown_keys(params: Mapping[str, Any], joint_names: set) -> None:
+    for key in params:
+        if key in PARAMS_BY_NAME or key in ROS_PARAMS or key.startswith('qos_overrides.'):
+            continue
+        head, _, rest = key.partition('.')
+        if head not in joint_names:
+            raise ConfigError(key, 'unknown parameter (not a driver parameter, and '
+                              f'{head!r} is not in joints)')
+        if rest in JOINT_KEYS or rest.startswith('registers.'):
+            continue
+        raise ConfigError(key, f'unknown joint parameter {rest!r} (expected one of '
+                          f'{list(JOINT_KEYS)} or registers.<name>)')
+
+
+def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
+    key = f'{name}.id'
+    if key not in params:
+        raise ConfigError(key, f'joint {name!r} has no id')
+    servo_id = _check_type(key, params[key], int)
+    if not 0 <= servo_id <= 252:
+        raise ConfigError(key, f'id {servo_id} is outside 0..252')
+    key = f'{name}.operating_mode'
+    mode = _check_type(key, params.get(key, 'position'), str)
+    if mode not in ct.OPERATING_MODES:
+        raise ConfigError(key, f'unknown operating mode {mode!r} (one of '
+                          f'{list(ct.OPERATING_MODES)})')
+    key = f'{name}.torque_constant'
+    torque_constant = _check_type(key, params.get(key, model.DEFAULT_TORQUE_CONSTANT_NM_PER_A),
+                                  float)
+    if torque_constant <= 0.0:
+        raise ConfigError(key, f'must be positive, got {torque_constant}')
+    prefix = f'{name}.registers.'
+    registers = []
+    for key in sorted(k for k in params if k.startswith(prefix)):
+        register = key[len(prefix):]
+        try:
+            item = model.writable_register(register)
+        except ValueError as exc:
+            raise ConfigError(key, str(exc)) from None
+        value = _check_type(key, params[key], int)
+        try:
+            model.check_range(item, value)
+        except ValueError as exc:
+            raise ConfigError(key, str(exc)) from None
+        registers.append((register, value))
+    _check_limits(name, dict(registers), mode)
+    return JointConfig(name, servo_id, mode, torque_constant, tuple(registers))
+
+
+def _check_limits(name: str, registers: Dict[str, int], mode: str) -> None:
+    # Values bounded by another register of the same file must respect it, as the servo would
+    # refuse them (data limit error) at configure.
+    def value(register: str) -> int:
+        return registers.get(register, ct.BY_NAME[register].initial)
+
+    for register, limit in (('profile_velocity', 'velocity_limit'),
+                            ('profile_acceleration', 'acceleration_limit'),
+                            ('goal_pwm', 'pwm_limit'), ('goal_current', 'current_limit')):
+        if register in registers and abs(registers[register]) > value(limit):
+            raise ConfigError(f'{name}.registers.{register}',
+                              f'{registers[register]} exceeds {limit} ({value(limit)})')
+    if value('min_position_limit') > value('max_position_limit'):
+        raise ConfigError(f'{name}.registers.min_position_limit',
+                          f'min_position_limit {value("min_position_limit")} is above '
+                          f'max_position_limit {value("max_position_limit")}')
+    if value('min_voltage_limit') > value('max_voltage_limit'):
+        raise ConfigError(f'{name}.registers.min_voltage_limit',
+                          'min_voltage_limit is above max_voltage_limit')
+    if mode == 'position' and abs(value('homing_offset')) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
+        raise ConfigError(f'{name}.registers.homing_offset',
+                          'position mode ignores a homing offset beyond +-1024 (the manual); '
+                          'use extended_position for larger offsets')

@@ -1,0 +1,277 @@
+"""
+The servo model: SI conversions, operating modes, the packed state block, bus timing.
+
+Pure data and arithmetic over the seed's control table (control_table.py); no I/O, no ROS, no SDK.
+Every conversion comes as a pair (raw -> SI, SI -> raw) so the two can never drift apart.
+"""
+
+from dataclasses import dataclass
+import math
+import struct
+from typing import Callable, Optional
+
+from dxl_servo_driver import control_table as ct
+
+# Units of the seed (REP 103 on the ROS side).
+PULSES_PER_REV = 4096
+POSITION_ZERO_RAW = 2048                       # raw 2048 = 0 rad (the horn's centre)
+RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
+RAD_S_PER_VELOCITY_RAW = 0.229 * 2.0 * math.pi / 60.0   # 0.229 rpm per unit
+A_PER_CURRENT_RAW = 2.69e-3                    # 2.69 mA per unit
+PWM_RAW_FULL = 885                             # 885 = 100 % duty
+V_PER_VOLTAGE_RAW = 0.1
+# Seed datasheet: 4.1 N·m stall torque at 2.3 A (12 V).
+DEFAULT_TORQUE_CONSTANT_NM_PER_A = 4.1 / 2.3
+
+
+def position_to_rad(raw: int) -> float:
+    """Return a position register value (pulses) in radians."""
+    return (raw - POSITION_ZERO_RAW) * RAD_PER_PULSE
+
+
+def position_from_rad(rad: float) -> int:
+    """Return the position register value (pulses) nearest to an angle in radians."""
+    return int(round(rad / RAD_PER_PULSE)) + POSITION_ZERO_RAW
+
+
+def velocity_to_rad_s(raw: int) -> float:
+    """Return a velocity register value (0.229 rpm units) in rad/s."""
+    return raw * RAD_S_PER_VELOCITY_RAW
+
+
+def velocity_from_rad_s(rad_s: float) -> int:
+    """Return the velocity register value nearest to a velocity in rad/s."""
+    return int(round(rad_s / RAD_S_PER_VELOCITY_RAW))
+
+
+def current_to_a(raw: int) -> float:
+    """Return a current register value (2.69 mA units) in amperes."""
+    return raw * A_PER_CURRENT_RAW
+
+
+def current_from_a(amps: float) -> int:
+    """Return the current register value nearest to a current in amperes."""
+    return int(round(amps / A_PER_CURRENT_RAW))
+
+
+def pwm_to_ratio(raw: int) -> float:
+    """Return a PWM register value as a ratio of full output (-1..1)."""
+    return raw / PWM_RAW_FULL
+
+
+def pwm_from_ratio(ratio: float) -> int:
+    """Return the PWM register value nearest to a ratio of full output."""
+    return int(round(ratio * PWM_RAW_FULL))
+
+
+def voltage_to_v(raw: int) -> float:
+    """Return a voltage register value (0.1 V units) in volts."""
+    return raw * V_PER_VOLTAGE_RAW
+
+
+def voltage_from_v(volts: float) -> int:
+    """Return the voltage register value nearest to a voltage."""
+    return int(round(volts / V_PER_VOLTAGE_RAW))
+
+
+@dataclass(frozen=True)
+class CommandKind:
+    """One kind of goal a joint accepts: its register, SI unit and conversions."""
+
+    name: str
+    register: str
+    unit: str
+    to_raw: Callable[[float], int]
+    to_si: Callable[[int], float]
+
+
+COMMAND_KINDS: dict[str, CommandKind] = {
+    'position': CommandKind('position', 'goal_position', 'rad', position_from_rad,
+                            position_to_rad),
+    'velocity': CommandKind('velocity', 'goal_velocity', 'rad/s', velocity_from_rad_s,
+                            velocity_to_rad_s),
+    'current': CommandKind('current', 'goal_current', 'A', current_from_a, current_to_a),
+    'pwm': CommandKind('pwm', 'goal_pwm', 'ratio', pwm_from_ratio, pwm_to_ratio),
+}
+
+MODE_NAMES: dict[int, str] = {value: name for name, value in ct.OPERATING_MODES.items()}
+POSITION_MODES = frozenset({'position', 'extended_position', 'current_based_position'})
+
+# Which command kinds drive a joint in each mode (SPEC section 2, Topics). In current-based
+# position mode the current goal is the current limit of the position controller.
+MODE_COMMANDS: dict[str, frozenset[str]] = {
+    'current': frozenset({'current'}),
+    'velocity': frozenset({'velocity'}),
+    'position': frozenset({'position'}),
+    'extended_position': frozenset({'position'}),
+    'current_based_position': frozenset({'position', 'current'}),
+    'pwm': frozenset({'pwm'}),
+}
+
+# What a mode change resets on the servo (seed, Operating Mode note 1): the driver re-applies the
+# configured values of these after every mode switch.
+MODE_CHANGE_RESETS = (
+    'profile_velocity', 'profile_acceleration', 'goal_pwm', 'goal_current',
+    'velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
+    'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain',
+)
+
+# Registers the driver manages itself; a configuration may not set them.
+DRIVER_OWNED = frozenset(
+    {'torque_enable', 'operating_mode', 'id', 'baud_rate', 'goal_position', 'goal_velocity'}
+    | {f'indirect_address_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)}
+    | {f'indirect_data_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)})
+
+
+def writable_register(name: str) -> ct.Item:
+    """Return the item a configuration may write, or raise ValueError saying why not."""
+    try:
+        item = ct.BY_NAME[name]
+    except KeyError:
+        raise ValueError(f'unknown register {name!r} (not in the control table)') from None
+    if item.access != 'RW':
+        raise ValueError(f'register {name!r} is read-only')
+    if name in DRIVER_OWNED:
+        raise ValueError(f'register {name!r} is managed by the driver and cannot be configured')
+    return item
+
+
+def check_range(item: ct.Item, value: int) -> None:
+    """Raise ValueError when a raw value is outside the item's static range."""
+    if not item.minimum <= value <= item.maximum:
+        unit = f' {item.unit}' if item.unit else ''
+        raise ValueError(f'{value} is outside the range of {item.name}: '
+                         f'{item.minimum}..{item.maximum}{unit}')
+
+
+@dataclass(frozen=True)
+class BlockField:
+    """One register inside the packed state block."""
+
+    name: str
+    offset: int
+    size: int
+
+
+class StateBlock:
+    """
+    The per-cycle state of one servo, packed through indirect addresses.
+
+    The registers below are scattered over the table (64, 70, 122..146); mapping them to
+    consecutive indirect data bytes lets one sync read fetch all of them from every servo.
+    The last byte maps status_return_level, which the driver never sets to 0: after a reboot or
+    a power cut the indirect addresses return to their defaults and that byte reads 0, which is
+    how the driver notices a servo that restarted on its own.
+    """
+
+    FIELDS: tuple[tuple[str, str], ...] = (
+        ('present_position', 'i'),
+        ('present_velocity', 'i'),
+        ('present_current', 'h'),
+        ('present_pwm', 'h'),
+        ('present_input_voltage', 'H'),
+        ('present_temperature', 'B'),
+        ('moving', 'B'),
+        ('moving_status', 'B'),
+        ('hardware_error_status', 'B'),
+        ('torque_enable', 'B'),
+        ('status_return_level', 'B'),
+    )
+    FIRST_INDIRECT = 1
+
+    def __init__(self) -> None:
+        self.names: tuple[str, ...] = tuple(name for name, _ in self.FIELDS)
+        self.struct = struct.Struct('<' + ''.join(code for _, code in self.FIELDS))
+        self.size: int = self.struct.size
+        fields = []
+        offset = 0
+        for name, _ in self.FIELDS:
+            item = ct.BY_NAME[name]
+            fields.append(BlockField(name, offset, item.size))
+            offset += item.size
+        self.fields: tuple[BlockField, ...] = tuple(fields)
+        assert offset == self.size, 'struct codes disagree with the control table sizes'
+        self.index: dict[str, int] = {name: i for i, name in enumerate(self.names)}
+        self.read_address: int = ct.indirect_data_address(self.FIRST_INDIRECT)
+        self.canary_index: int = self.index['status_return_level']
+
+    def indirect_map(self) -> list[int]:
+        """Return the target address of each indirect byte, in order (one per block byte)."""
+        targets = []
+        for field in self.fields:
+            base = ct.BY_NAME[field.name].address
+            targets.extend(base + k for k in range(field.size))
+        return targets
+
+    def indirect_map_bytes(self) -> bytes:
+        """Return the data of one WRITE to indirect_address_1.. that sets up the whole block."""
+        return b''.join(struct.pack('<H', address) for address in self.indirect_map())
+
+    def indirect_map_address(self) -> int:
+        """Return the address of the first indirect address register the block uses."""
+        return ct.indirect_address_address(self.FIRST_INDIRECT)
+
+    def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
+        """Return the block's raw values, in FIELDS order."""
+        return self.struct.unpack_from(data, offset)
+
+    def restarted(self, values: tuple[int, ...]) -> bool:
+        """Return True when the values show the indirect mapping was lost (servo restarted)."""
+        return values[self.canary_index] == 0
+
+
+STATE_BLOCK = StateBlock()
+
+# Protocol 2.0 framing sizes, for bus timing.
+STATUS_OVERHEAD_BYTES = 11       # header 4, id, length 2, instruction, error, crc 2
+INSTRUCTION_OVERHEAD_BYTES = 10  # header 4, id, length 2, instruction, crc 2
+BITS_PER_BYTE = 10               # 8N1: start + 8 data + stop
+
+
+def sync_read_bytes(n_servos: int, data_length: int) -> int:
+    """Return the bytes on the wire of one sync read (instruction + every status packet)."""
+    instruction = INSTRUCTION_OVERHEAD_BYTES + 4 + n_servos
+    return instruction + n_servos * (STATUS_OVERHEAD_BYTES + data_length)
+
+
+def sync_write_bytes(n_servos: int, data_length: int) -> int:
+    """Return the bytes on the wire of one sync write."""
+    return INSTRUCTION_OVERHEAD_BYTES + 4 + n_servos * (1 + data_length)
+
+
+@dataclass(frozen=True)
+class BusBudget:
+    """What one cycle costs on the wire and the rate the bus can sustain."""
+
+    bytes_per_cycle: int
+    wire_time_s: float
+    return_delay_s: float
+    latency_s: float
+
+    @property
+    def cycle_time_s(self) -> float:
+        """Return the shortest possible cycle."""
+        return self.wire_time_s + self.return_delay_s + self.latency_s
+
+    @property
+    def rate_limit_hz(self) -> float:
+        """Return the highest loop rate the bus can carry."""
+        return 1.0 / self.cycle_time_s
+
+
+def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
+               latency_timer_s: float = 0.0, read_length: Optional[int] = None,
+               write_length: int = 4) -> BusBudget:
+    """
+    Return the cost of one cycle: a sync read of the state block and one sync write of goals.
+
+    Each servo waits its Return Delay Time (2 us per unit) before answering; the USB adapter's
+    latency timer holds the replies once per cycle before the host sees them.
+    """
+    length = STATE_BLOCK.size if read_length is None else read_length
+    total = sync_read_bytes(n_servos, length) + sync_write_bytes(n_servos, write_length)
+    return BusBudget(
+        bytes_per_cycle=total,
+        wire_time_s=total * BITS_PER_BYTE / baud_bps,
+        return_delay_s=n_servos * return_delay_time_raw * 2e-6,
+        latency_s=latency_timer_s)

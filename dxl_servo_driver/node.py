@@ -1,0 +1,520 @@
+"""
+The ROS 2 node: parameters, topics, services, lifecycle and diagnostics over the manager.
+
+This is the only module that imports rclpy. The bus cycle runs in its own thread at loop_rate, so
+it never waits on the executor; topic and service callbacks only queue goals or call the manager,
+whose lock keeps one transaction on the bus at a time.
+"""
+
+import math
+import sys
+import threading
+import time
+from typing import Any, Dict, List, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from dxl_servo_driver import config as cfg
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+from dxl_servo_driver.manager import (
+    IDX_CURRENT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
+    IDX_TEMPERATURE, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Manager, ManagerError, Servo)
+from dxl_servo_driver_msgs.msg import JointCommand, ServoState, ServoStateArray
+from dxl_servo_driver_msgs.srv import (
+    ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)
+from rcl_interfaces.msg import (
+    FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult)
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+
+NODE_NAME = 'dxl_servo_driver'
+COMMAND_KINDS = ('position', 'velocity', 'current', 'pwm')
+# Parameters that may change while the node runs; the others need a restart.
+RUNTIME_PARAMS = ('loop_rate', 'state_rate', 'command_timeout', 'temperature_warn',
+                  'temperature_error', 'voltage_low', 'voltage_high')
+_PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+                float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+                list: ParameterType.PARAMETER_STRING_ARRAY}
+
+
+class StartupFailure(Exception):
+    """The node cannot start; the message says why, in one line."""
+
+
+class RateMeter:
+    """Measured cycles per second over a sliding window."""
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        self._window_s = window_s
+        self._count = 0
+        self._start = time.monotonic()
+        self.rate_hz = 0.0
+
+    def tick(self) -> None:
+        """Count one cycle."""
+        self._count += 1
+        now = time.monotonic()
+        if now - self._start >= self._window_s:
+            self.rate_hz = self._count / (now - self._start)
+            self._count = 0
+            self._start = now
+
+
+def _descriptor(spec: cfg.ParamSpec, read_only: bool) -> ParameterDescriptor:
+    text = spec.description + (f' [{spec.unit}]' if spec.unit else '')
+    if spec.choices:
+        text += f' One of: {", ".join(str(c) for c in spec.choices)}.'
+    descriptor = ParameterDescriptor(description=text, type=_PARAM_TYPES[spec.kind],
+                                     read_only=read_only)
+    if spec.choices:
+        descriptor.additional_constraints = f'one of {list(spec.choices)}'
+    if spec.minimum is not None and spec.maximum is not None:
+        if spec.kind is float:
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=float(spec.minimum), to_value=float(spec.maximum))]
+        elif spec.kind is int:
+            descriptor.integer_range = [IntegerRange(
+                from_value=int(spec.minimum), to_value=int(spec.maximum))]
+    return descriptor
+
+
+class DriverNode(LifecycleNode):
+    """One bus of Dynamixel servos as a lifecycle node."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True,
+                         **kwargs)
+        params = {name: p.value for name, p in self.get_parameters_by_prefix('').items()}
+        try:
+            self.config = cfg.validate(params)
+        except cfg.ConfigError as exc:
+            raise StartupFailure(f'invalid configuration: {exc}') from None
+        self._declare_with_descriptors()
+        log = self.get_logger()
+        self.manager = Manager(self.config, info=log.info, warn=log.warning, error=log.error)
+        self._active = False
+        self._stop = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self._rate = RateMeter()
+        self._loop_period_s = 1.0 / self.config.loop_rate
+        self._state_period_s = (1.0 / self.config.state_rate) if self.config.state_rate else 0.0
+        self._thresholds = {name: getattr(self.config, name) for name in RUNTIME_PARAMS[3:]}
+        self._command_timeout = self.config.command_timeout
+        self._last_state_s = 0.0
+        self._last_diag_s = 0.0
+        self._joint_state = JointState()
+        self.joint_states_pub = self.create_publisher(JointState, 'joint_states', 10)
+        self.servo_states_pub = self.create_publisher(ServoStateArray, '~/servo_states', 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._command_subs = [
+            self.create_subscription(JointCommand, f'~/commands/{kind}',
+                                     self._command_callback(kind), 10)
+            for kind in COMMAND_KINDS]
+        self._services = [
+            self.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
+            for kind in COMMAND_KINDS]
+        self._services += [
+            self.create_service(SetOperatingMode, '~/set_operating_mode', self._on_set_mode),
+            self.create_service(SetTorque, '~/set_torque', self._on_set_torque),
+            self.create_service(Reboot, '~/reboot', self._on_reboot),
+            self.create_service(ReadRegister, '~/read_register', self._on_read_register),
+            self.create_service(WriteRegister, '~/write_register', self._on_write_register),
+        ]
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    # parameters ----------------------------------------------------------------------------
+    def _declare_with_descriptors(self) -> None:
+        """Re-declare every parameter with its description and range (ros2 param describe)."""
+        for spec in cfg.PARAMS:
+            value = getattr(self.config, spec.name) if spec.name != 'joints' else [
+                joint.name for joint in self.config.joints]
+            if self.has_parameter(spec.name):
+                self.undeclare_parameter(spec.name)
+            read_only = spec.name not in RUNTIME_PARAMS
+            self.declare_parameter(spec.name, value, _descriptor(spec, read_only),
+                                   ignore_override=True)
+        for joint in self.config.joints:
+            entries = [
+                ('id', joint.servo_id, "Dynamixel id of the joint's servo (0..252).",
+                 ParameterType.PARAMETER_INTEGER),
+                ('operating_mode', joint.operating_mode,
+                 f'Operating mode at start: one of {", ".join(ct.OPERATING_MODES)}.',
+                 ParameterType.PARAMETER_STRING),
+                ('torque_constant', joint.torque_constant_nm_per_a,
+                 'Effort = current x this [N*m/A] (seed: 4.1 N*m at 2.3 A).',
+                 ParameterType.PARAMETER_DOUBLE),
+            ]
+            for register, value in joint.registers:
+                item = ct.BY_NAME[register]
+                entries.append((f'registers.{register}', value,
+                                f'{item.description} at address {item.address}, raw '
+                                f'[{item.unit or "count"}], {item.minimum}..{item.maximum}, '
+                                f'{item.area.upper()}; applied at configure.',
+                                ParameterType.PARAMETER_INTEGER))
+            for key, value, text, kind in entries:
+                name = f'{joint.name}.{key}'
+                if self.has_parameter(name):
+                    self.undeclare_parameter(name)
+                self.declare_parameter(name, value, ParameterDescriptor(
+                    description=text, type=kind, read_only=True), ignore_override=True)
+
+    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        changes: Dict[str, float] = {}
+        for param in params:
+            if param.name not in RUNTIME_PARAMS:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f'{param.name} cannot be changed while the node runs (restart it)')
+            spec = cfg.PARAMS_BY_NAME[param.name]
+            try:
+                changes[param.name] = cfg._check_spec(spec, param.value)
+            except cfg.ConfigError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        if changes.get('state_rate', 1.0) < 0.0:
+            return SetParametersResult(successful=False, reason='state_rate must be >= 0')
+        for name, value in changes.items():
+            if name == 'loop_rate':
+                self._loop_period_s = 1.0 / value
+            elif name == 'state_rate':
+                self._state_period_s = (1.0 / value) if value else 0.0
+            elif name == 'command_timeout':
+                self._command_timeout = value
+                self.manager.config = _replace(self.manager.config, command_timeout=value)
+            else:
+                self._thresholds[name] = value
+        return SetParametersResult(successful=True)
+
+    # lifecycle -----------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Open the port, find and verify every servo, apply the configuration."""
+        try:
+            self.manager.configure()
+        except ManagerError as exc:
+            self.get_logger().error(str(exc))
+            self.manager.close()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Goal = present, torque on, start the cycle."""
+        try:
+            self.manager.activate()
+        except ManagerError as exc:
+            self.get_logger().error(str(exc))
+            return TransitionCallbackReturn.FAILURE
+        self._stop.clear()
+        self._active = True
+        self._thread = threading.Thread(target=self._run, name='dxl_bus_cycle', daemon=True)
+        self._thread.start()
+        self.get_logger().info(
+            f'active: {len(self.manager.active_servos())} servos on {self.config.port} at '
+            f'{self.config.baud_rate} bps, loop_rate {self.config.loop_rate:g} Hz')
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop the cycle; torque off if torque_off_on_shutdown."""
+        self._stop_cycle()
+        self.manager.deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close the port."""
+        self.manager.close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop, torque off (if configured), close the port."""
+        self.shutdown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _stop_cycle(self) -> None:
+        self._active = False
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def shutdown(self) -> None:
+        """Stop the cycle, apply torque_off_on_shutdown, close the port. Idempotent."""
+        was_active = self._active or self._thread is not None
+        self._stop_cycle()
+        if was_active:
+            self.manager.deactivate()
+        self.manager.close()
+
+    def start(self) -> None:
+        """With autostart, configure and activate; StartupFailure when that fails."""
+        if not self.config.autostart:
+            self.get_logger().info('autostart is false: waiting for lifecycle transitions')
+            return
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            raise StartupFailure('configure failed (see the error above)')
+        if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
+            raise StartupFailure('activate failed (see the error above)')
+
+    # the cycle -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_s = time.monotonic()
+        behind_reported = False
+        while not self._stop.is_set():
+            try:
+                self._cycle()
+            except Exception as exc:  # noqa: B902 - the cycle must survive anything
+                self.get_logger().error(f'cycle failed: {exc}', throttle_duration_sec=2.0)
+                self._stop.wait(0.1)
+            self._rate.tick()
+            next_s += self._loop_period_s
+            delay = next_s - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                if delay < -self._loop_period_s and not behind_reported:
+                    behind_reported = True
+                    self.get_logger().warning(
+                        f'the bus cannot keep loop_rate {1.0 / self._loop_period_s:g} Hz: '
+                        'running as fast as it allows (the measured rate is in /diagnostics)')
+                next_s = time.monotonic()
+
+    def _cycle(self) -> None:
+        stamp = self.get_clock().now().to_msg()
+        self.manager.read_states()
+        self._publish_joint_states(stamp)
+        self.manager.check_command_timeout()
+        self.manager.write_pending()
+        now = time.monotonic()
+        if self._state_period_s and now - self._last_state_s >= self._state_period_s:
+            self._last_state_s = now
+            self.servo_states_pub.publish(self._servo_states(stamp))
+        if now - self._last_diag_s >= 1.0:
+            self._last_diag_s = now
+            self.diagnostics_pub.publish(self._diagnostics(stamp))
+
+    def _publish_joint_states(self, stamp: Any) -> None:
+        msg = self._joint_state
+        msg.header.stamp = stamp
+        names = []
+        positions = []
+        velocities = []
+        efforts = []
+        for servo in self.manager.order:
+            state = servo.state
+            if not servo.fresh or state is None:
+                continue   # never a stale or invented value
+            names.append(servo.name)
+            positions.append(model.position_to_rad(state[IDX_POSITION]))
+            velocities.append(model.velocity_to_rad_s(state[IDX_VELOCITY]))
+            efforts.append(model.current_to_a(state[IDX_CURRENT])
+                           * servo.joint.torque_constant_nm_per_a)
+        msg.name = names
+        msg.position = positions
+        msg.velocity = velocities
+        msg.effort = efforts
+        self.joint_states_pub.publish(msg)
+
+    def _servo_state(self, servo: Servo) -> ServoState:
+        msg = ServoState()
+        msg.name = servo.name
+        msg.id = servo.servo_id
+        msg.model_number = servo.model_number
+        msg.firmware_version = servo.firmware_version
+        msg.operating_mode = servo.mode
+        msg.comm_errors = min(servo.comm_errors, 2 ** 32 - 1)
+        state = servo.state
+        if state is None:
+            for attr in ('position', 'velocity', 'current', 'pwm', 'input_voltage',
+                         'temperature'):
+                setattr(msg, attr, math.nan)
+            return msg
+        msg.torque_enabled = bool(state[IDX_TORQUE])
+        msg.position = model.position_to_rad(state[IDX_POSITION])
+        msg.velocity = model.velocity_to_rad_s(state[IDX_VELOCITY])
+        msg.current = model.current_to_a(state[IDX_CURRENT])
+        msg.pwm = model.pwm_to_ratio(state[IDX_PWM])
+        msg.input_voltage = model.voltage_to_v(state[IDX_VOLTAGE])
+        msg.temperature = float(state[IDX_TEMPERATURE])
+        msg.moving = bool(state[IDX_MOVING])
+        msg.moving_status = state[IDX_MOVING_STATUS]
+        msg.hardware_error_status = state[IDX_HW_ERROR]
+        msg.hardware_errors = ct.decode_hardware_errors(state[IDX_HW_ERROR])
+        return msg
+
+    def _servo_states(self, stamp: Any) -> ServoStateArray:
+        msg = ServoStateArray()
+        msg.header.stamp = stamp
+        msg.servos = [self._servo_state(servo) for servo in self.manager.order]
+        return msg
+
+    def _diagnostics(self, stamp: Any) -> DiagnosticArray:
+        manager = self.manager
+        bus = manager.bus
+        array = DiagnosticArray()
+        array.header.stamp = stamp
+        budget = manager.bus_budget()
+        measured = self._rate.rate_hz
+        bus_status = DiagnosticStatus(name=f'{self.get_name()}: bus {self.config.port}',
+                                      hardware_id=self.config.port)
+        bus_status.level = DiagnosticStatus.OK
+        bus_status.message = f'{measured:.0f} Hz'
+        if measured < 0.9 * min(self.config.loop_rate, budget.rate_limit_hz):
+            bus_status.level = DiagnosticStatus.WARN
+            bus_status.message = (f'{measured:.0f} Hz, below the requested '
+                                  f'{self.config.loop_rate:g} Hz')
+        values = {
+            'port': self.config.port, 'baud_rate': self.config.baud_rate,
+            'loop_rate_requested_hz': f'{1.0 / self._loop_period_s:g}',
+            'loop_rate_measured_hz': f'{measured:.1f}',
+            'bus_limit_hz': f'{budget.rate_limit_hz:.0f}',
+            'cycles': manager.cycles, 'read_failures': manager.read_failures,
+            'timeouts': bus.timeouts if bus else 0, 'corrupt_replies': bus.corrupt if bus else 0,
+            'status_errors': bus.status_errors if bus else 0,
+        }
+        bus_status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        array.status.append(bus_status)
+        for servo in manager.order:
+            array.status.append(self._servo_diagnostic(servo))
+        return array
+
+    def _servo_diagnostic(self, servo: Servo) -> DiagnosticStatus:
+        status = DiagnosticStatus(name=f'{self.get_name()}: {servo.name}',
+                                  hardware_id=f'{self.config.port} id {servo.servo_id}')
+        state = servo.state
+        problems: List[str] = []
+        level = DiagnosticStatus.OK
+        if not servo.online:
+            level = DiagnosticStatus.ERROR
+            problems.append('not on the bus')
+        elif not servo.fresh:
+            level = DiagnosticStatus.ERROR
+            problems.append('not answering')
+        values = {'id': servo.servo_id, 'model_number': servo.model_number,
+                  'firmware_version': servo.firmware_version, 'operating_mode': servo.mode,
+                  'comm_errors': servo.comm_errors, 'restarts': servo.restarts}
+        if state is not None:
+            temperature = float(state[IDX_TEMPERATURE])
+            voltage = model.voltage_to_v(state[IDX_VOLTAGE])
+            errors = ct.decode_hardware_errors(state[IDX_HW_ERROR])
+            values.update({'temperature_c': temperature, 'input_voltage_v': f'{voltage:.1f}',
+                           'torque_enabled': bool(state[IDX_TORQUE]),
+                           'hardware_errors': ', '.join(errors) or 'none'})
+            if errors:
+                level = DiagnosticStatus.ERROR
+                problems.append('hardware error: ' + ', '.join(errors))
+            if temperature >= self._thresholds['temperature_error']:
+                level = DiagnosticStatus.ERROR
+                problems.append(f'temperature {temperature:.0f} C')
+            elif temperature >= self._thresholds['temperature_warn']:
+                level = max(level, DiagnosticStatus.WARN)
+                problems.append(f'temperature {temperature:.0f} C')
+            if not self._thresholds['voltage_low'] <= voltage <= self._thresholds['voltage_high']:
+                level = max(level, DiagnosticStatus.WARN)
+                problems.append(f'input voltage {voltage:.1f} V')
+        status.level = level
+        status.message = '; '.join(problems) or 'OK'
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        return status
+
+    # commands and services -----------------------------------------------------------------
+    def _command_callback(self, kind: str):  # type: ignore[no-untyped-def]
+        def callback(msg: JointCommand) -> None:
+            if not self._active:
+                self.get_logger().warning(f'{kind} command ignored: the node is not active',
+                                          throttle_duration_sec=2.0)
+                return
+            try:
+                result = self.manager.command(kind, list(msg.name), list(msg.value))
+            except Exception as exc:  # noqa: B902 - a bad message must not stop the node
+                self.get_logger().error(f'{kind} command failed: {exc}',
+                                        throttle_duration_sec=2.0)
+                return
+            if not result.success:
+                self.get_logger().error(f'{kind} command refused: {result.message}',
+                                        throttle_duration_sec=2.0)
+        return callback
+
+    def _guard(self, response: Any, action) -> Any:  # type: ignore[no-untyped-def]
+        """Run a service action; a callback never raises, and inactive refuses."""
+        if not self._active:
+            response.success = False
+            response.message = 'the node is not active (lifecycle state)'
+            return response
+        try:
+            result = action()
+        except Exception as exc:  # noqa: B902 - services answer, they never raise
+            response.success = False
+            response.message = f'internal error: {exc}'
+            return response
+        response.success = result.success
+        response.message = result.message
+        return response
+
+    def _set_goals_callback(self, kind: str):  # type: ignore[no-untyped-def]
+        def callback(request: SetGoals.Request, response: SetGoals.Response) -> Any:
+            return self._guard(response, lambda: self.manager.command_now(
+                kind, list(request.name), list(request.value)))
+        return callback
+
+    def _on_set_mode(self, request: Any, response: Any) -> Any:
+        return self._guard(response, lambda: self.manager.set_operating_mode(
+            list(request.name), request.mode))
+
+    def _on_set_torque(self, request: Any, response: Any) -> Any:
+        return self._guard(response, lambda: self.manager.set_torque(
+            list(request.name), request.enable))
+
+    def _on_reboot(self, request: Any, response: Any) -> Any:
+        return self._guard(response, lambda: self.manager.reboot(list(request.name)))
+
+    def _on_read_register(self, request: Any, response: Any) -> Any:
+        if not self._active:
+            response.success = False
+            response.message = 'the node is not active (lifecycle state)'
+            return response
+        try:
+            value, message = self.manager.read_register(request.name, request.register_name)
+        except Exception as exc:  # noqa: B902 - services answer, they never raise
+            value, message = None, f'internal error: {exc}'
+        response.success = value is not None
+        response.value = value if value is not None else 0
+        response.message = message
+        return response
+
+    def _on_write_register(self, request: Any, response: Any) -> Any:
+        return self._guard(response, lambda: self.manager.write_register(
+            request.name, request.register_name, request.value))
+
+
+def _replace(config: cfg.DriverConfig, **changes: Any) -> cfg.DriverConfig:
+    import dataclasses
+    return dataclasses.replace(config, **changes)
+
+
+def main(args: Optional[List[str]] = None) -> int:
+    """Run the driver node until Ctrl-C; non-zero exit when it cannot start."""
+    rclpy.init(args=args)
+    node: Optional[DriverNode] = None
+    code = 0
+    try:
+        node = DriverNode()
+        node.start()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except StartupFailure as exc:
+        logger = node.get_logger() if node else rclpy.logging.get_logger(NODE_NAME)
+        logger.fatal(str(exc))
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
