@@ -1,0 +1,238 @@
+"""
+Dynamixel Protocol 2.0 framing: CRC-16, byte stuffing, packet encoding and an incremental parser.
+
+Packet layout: FF FF FD 00 | ID | LEN_L LEN_H | INSTRUCTION | PARAMS... | CRC_L CRC_H, where LEN
+counts instruction, (stuffed) parameters and CRC.  A status packet's instruction is 0x55 and its
+first parameter is the error byte.  Byte stuffing: inside instruction + parameters every
+FF FF FD is followed by an extra FD so the header never appears inside a packet.  The CRC covers
+the whole packet as sent (stuffed), header included.
+"""
+
+from dataclasses import dataclass
+from enum import IntEnum
+import struct
+
+HEADER = b'\xff\xff\xfd\x00'
+BROADCAST_ID = 0xFE
+MAX_ID = 252
+ALERT_BIT = 0x80
+# Upper bound of the length field this parser accepts (the SDK's own buffers are 1024 bytes);
+# a larger value is taken as line noise and the parser resyncs.
+MAX_PACKET_LENGTH = 4096
+DEFAULT_INTER_BYTE_TIMEOUT_S = 0.05
+
+_STUFF_PATTERN = b'\xff\xff\xfd'
+_STUFFED_PATTERN = b'\xff\xff\xfd\xfd'
+
+
+class Instruction(IntEnum):
+    """Protocol 2.0 instruction codes."""
+
+    PING = 0x01
+    READ = 0x02
+    WRITE = 0x03
+    REG_WRITE = 0x04
+    ACTION = 0x05
+    FACTORY_RESET = 0x06
+    REBOOT = 0x08
+    CLEAR = 0x10
+    STATUS = 0x55
+    SYNC_READ = 0x82
+    SYNC_WRITE = 0x83
+    BULK_READ = 0x92
+    BULK_WRITE = 0x93
+
+
+class ErrorCode(IntEnum):
+    """Status packet error codes (bits 0..6 of the error byte)."""
+
+    RESULT_FAIL = 1
+    INSTRUCTION = 2
+    CRC = 3
+    DATA_RANGE = 4
+    DATA_LENGTH = 5
+    DATA_LIMIT = 6
+    ACCESS = 7
+
+
+def _make_crc_table() -> tuple[int, ...]:
+    # CRC-16 with polynomial 0x8005, MSB first, initial 0 (the e-manual's table).
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_CRC_TABLE = _make_crc_table()
+
+
+def _make_crc_word_table() -> tuple[int, ...]:
+    # Two bytes per step: a 16-bit CRC fed 16 bits is a function of (crc ^ word) alone.
+    table = _CRC_TABLE
+    words = []
+    for word in range(65536):
+        crc = table[word >> 8]
+        words.append(((crc << 8) & 0xFF00) ^ table[(crc >> 8) ^ (word & 0xFF)])
+    return tuple(words)
+
+
+_CRC_WORD_TABLE = _make_crc_word_table()
+_WORD_STRUCTS: dict[int, struct.Struct] = {}
+
+
+def crc16(data: bytes, crc: int = 0) -> int:
+    """Return the Protocol 2.0 CRC-16 of data, continuing from crc."""
+    words = len(data) >> 1
+    if words:
+        unpacker = _WORD_STRUCTS.get(words)
+        if unpacker is None:
+            unpacker = _WORD_STRUCTS.setdefault(words, struct.Struct(f'>{words}H'))
+        word_table = _CRC_WORD_TABLE
+        for word in unpacker.unpack_from(data):
+            crc = word_table[crc ^ word]
+    if len(data) & 1:
+        crc = ((crc << 8) & 0xFF00) ^ _CRC_TABLE[(crc >> 8) ^ data[-1]]
+    return crc
+
+
+def stuff(payload: bytes) -> bytes:
+    """Insert the stuffing byte FD after every FF FF FD of instruction + parameters."""
+    if _STUFF_PATTERN not in payload:
+        return bytes(payload)
+    return bytes(payload).replace(_STUFF_PATTERN, _STUFFED_PATTERN)
+
+
+def unstuff(payload: bytes) -> bytes:
+    """Remove the stuffing byte after every FF FF FD (the inverse of stuff)."""
+    if _STUFFED_PATTERN not in payload:
+        return bytes(payload)
+    return bytes(payload).replace(_STUFFED_PATTERN, _STUFF_PATTERN)
+
+
+def _encode(servo_id: int, body: bytes) -> bytes:
+    stuffed = stuff(body)
+    head = HEADER + struct.pack('<BH', servo_id & 0xFF, len(stuffed) + 2)
+    packet = head + stuffed
+    return packet + struct.pack('<H', crc16(packet))
+
+
+def encode_instruction(servo_id: int, instruction: int, params: bytes = b'') -> bytes:
+    """Return a whole instruction packet as it goes on the wire."""
+    return _encode(servo_id, bytes((instruction & 0xFF,)) + bytes(params))
+
+
+def encode_status(servo_id: int, error: int, params: bytes = b'') -> bytes:
+    """Return a whole status packet (instruction 0x55) as it goes on the wire."""
+    return _encode(servo_id, bytes((Instruction.STATUS, error & 0xFF)) + bytes(params))
+
+
+@dataclass
+class Packet:
+    """A decoded packet; error is meaningful only for status packets."""
+
+    servo_id: int
+    instruction: int
+    params: bytes
+    error: int = 0
+
+
+@dataclass(frozen=True)
+class ParseEvent:
+    """One whole packet found in the byte stream; crc_ok is False when its CRC did not match."""
+
+    packet: Packet
+    crc_ok: bool
+    raw: bytes
+
+
+def _packet_from_body(servo_id: int, body: bytes) -> Packet:
+    instruction = body[0]
+    params = body[1:]
+    if instruction == Instruction.STATUS and params:
+        return Packet(servo_id, instruction, bytes(params[1:]), params[0])
+    return Packet(servo_id, instruction, bytes(params))
+
+
+def decode_packet(data: bytes) -> Packet:
+    """Decode exactly one whole packet; ValueError when it is not a valid packet."""
+    data = bytes(data)
+    if len(data) < 10 or not data.startswith(HEADER):
+        raise ValueError('not a Protocol 2.0 packet (short or no header)')
+    length = data[5] | (data[6] << 8)
+    if length < 3 or len(data) != 7 + length:
+        raise ValueError(f'length field {length} does not match {len(data)} bytes')
+    if crc16(data[:-2]) != (data[-2] | (data[-1] << 8)):
+        raise ValueError('CRC mismatch')
+    return _packet_from_body(data[4], unstuff(data[7:-2]))
+
+
+class StreamParser:
+    """
+    Incremental Protocol 2.0 parser.
+
+    feed() takes the bytes as they arrive and returns the whole packets found. Garbage before a
+    header is skipped; a length field below 3 or above MAX_PACKET_LENGTH is taken as noise (the
+    parser resyncs on the next header); a packet whose CRC fails is reported with crc_ok False
+    (its id and raw bytes as received) and skipped whole. A partial packet whose next byte comes
+    later than inter_byte_timeout_s is discarded, as the servo's receiver does.
+    """
+
+    def __init__(self, inter_byte_timeout_s: float = DEFAULT_INTER_BYTE_TIMEOUT_S) -> None:
+        self.inter_byte_timeout_s = inter_byte_timeout_s
+        self._buffer = bytearray()
+        self._last_byte_s: float | None = None
+
+    def reset(self) -> None:
+        """Forget any partial packet."""
+        self._buffer.clear()
+        self._last_byte_s = None
+
+    @property
+    def pending(self) -> int:
+        """Return how many bytes wait for the rest of their packet."""
+        return len(self._buffer)
+
+    def feed(self, chunk: bytes, now_s: float) -> list['ParseEvent']:
+        """Add bytes received at now_s; return the packets completed by them."""
+        buffer = self._buffer
+        if (buffer and self._last_byte_s is not None
+                and now_s - self._last_byte_s > self.inter_byte_timeout_s):
+            buffer.clear()
+        if chunk:
+            buffer += chunk
+            self._last_byte_s = now_s
+        events: list[ParseEvent] = []
+        while buffer:
+            start = buffer.find(HEADER)
+            if start < 0:
+                self._keep_header_prefix()
+                break
+            if start:
+                del buffer[:start]
+            if len(buffer) < 7:
+                break
+            length = buffer[5] | (buffer[6] << 8)
+            if length < 3 or length > MAX_PACKET_LENGTH:
+                del buffer[:len(HEADER)]
+                continue
+            total = 7 + length
+            if len(buffer) < total:
+                break
+            raw = bytes(buffer[:total])
+            del buffer[:total]
+            crc_ok = crc16(raw[:-2]) == (raw[-2] | (raw[-1] << 8))
+            body = unstuff(raw[7:-2]) if crc_ok else raw[7:-2]
+            events.append(ParseEvent(_packet_from_body(raw[4], body), crc_ok, raw))
+        return events
+
+    def _keep_header_prefix(self) -> None:
+        # Keep a trailing FF / FF FF / FF FF FD: the rest of a header may follow.
+        buffer = self._buffer
+        for keep in (3, 2, 1):
+            if buffer.endswith(HEADER[:keep]):
+                del buffer[:-keep]
+                return
+        buffer.clear()

@@ -1,0 +1,234 @@
+"""
+The simulated servos on one bus: bytes in, status packets out, plus fault injection.
+
+One StreamParser sees the host's bytes; each whole packet goes to every powered, plugged servo
+listening at the baud the bytes came at.  Replies come back in wire order: for SYNC_READ the
+order of the ids in the packet, for BULK_READ the order of its records, for a broadcast PING
+ascending id.  Fault injection acts per servo object (found by its current id): a dropped status
+is lost, a corrupted one has one bit flipped after the header so the receiver's CRC check fails
+(CRC-16 catches every single-bit error).
+"""
+
+from dataclasses import dataclass
+import random
+import threading
+import time
+from typing import Callable, Iterable
+
+from dxl_servo_driver.control_table import BY_NAME
+from dxl_servo_driver.protocol import BROADCAST_ID, Instruction, Packet, StreamParser
+from dxl_servo_driver.sim.dynamics import ServoDynamics
+from dxl_servo_driver.sim.servo import SimServo
+
+ERROR_KINDS: dict[str, int] = {
+    'voltage': 0x01, 'overheat': 0x04, 'encoder': 0x08, 'shock': 0x10, 'overload': 0x20,
+}
+# Replies of one packet stay in wire order even if two servos share an id (bus order then).
+_LAST = 1 << 16
+
+
+@dataclass(frozen=True)
+class Reply:
+    """A status packet as it goes on the wire."""
+
+    data: bytes
+    servo_id: int
+    return_delay_s: float
+
+
+class _Slot:
+    """One servo on the bus and its fault-injection state."""
+
+    def __init__(self, servo: SimServo) -> None:
+        self.servo = servo
+        self.plugged = True
+        self.drop_probability = 0.0
+        self.corrupt_probability = 0.0
+
+
+class SimBus:
+    """Simulated servos sharing one bus."""
+
+    def __init__(self, ids: Iterable[int], clock: Callable[[], float] = time.monotonic,
+                 seed: int | None = None, boot_time_s: float = 0.1) -> None:
+        self.lock = threading.RLock()
+        self._clock = clock
+        self._random = random.Random(seed)
+        self._parser = StreamParser()
+        now_s = clock()
+        self._slots: list[_Slot] = []
+        for servo_id in ids:
+            servo_id = int(servo_id)
+            if not 0 <= servo_id <= 252:
+                raise ValueError(f'servo id {servo_id} outside 0..252')
+            servo = SimServo(servo_id, ServoDynamics(), now_s, boot_time_s=boot_time_s)
+            self._slots.append(_Slot(servo))
+
+    # ---- the wire -----------------------------------------------------------------------------
+    def feed(self, data: bytes, baud_bps: int) -> list[Reply]:
+        """Take bytes that arrived at baud_bps; return the status packets in wire order."""
+        with self.lock:
+            now_s = self._clock()
+            events = self._parser.feed(bytes(data), now_s)
+            if not events:
+                return []
+            for slot in self._slots:
+                slot.servo.advance(now_s)
+            replies: list[Reply] = []
+            for event in events:
+                order = _reply_order(event.packet) if event.crc_ok else None
+                answered: list[tuple[int, int, Reply]] = []
+                for index, slot in enumerate(self._slots):
+                    servo = slot.servo
+                    if not slot.plugged or servo.baud_bps != baud_bps:
+                        continue
+                    servo_id = servo.servo_id
+                    status = servo.handle(event, now_s)
+                    if status is None:
+                        continue
+                    reply = self._inject(slot, status, servo_id)
+                    if reply is None:
+                        continue
+                    rank = order.get(servo_id, _LAST) if order is not None else servo_id
+                    answered.append((rank, index, reply))
+                answered.sort(key=lambda entry: (entry[0], entry[1]))
+                replies.extend(entry[2] for entry in answered)
+            return replies
+
+    def _inject(self, slot: _Slot, status: bytes, servo_id: int) -> Reply | None:
+        rng = self._random
+        if slot.drop_probability and rng.random() < slot.drop_probability:
+            return None
+        if slot.corrupt_probability and rng.random() < slot.corrupt_probability:
+            corrupted = bytearray(status)
+            # Past the header, id and length, so the receiver frames it and its CRC fails.
+            position = rng.randrange(7, len(corrupted))
+            corrupted[position] ^= 1 << rng.randrange(8)
+            status = bytes(corrupted)
+        return Reply(status, servo_id, slot.servo.return_delay_s)
+
+    # ---- inspection ---------------------------------------------------------------------------
+    def servo_ids(self) -> list[int]:
+        """Return the current ids of all servos on the bus (plugged or not), ascending."""
+        with self.lock:
+            return sorted(slot.servo.servo_id for slot in self._slots)
+
+    def read_register(self, servo_id: int, name: str) -> int:
+        """Return one register of a servo, brought up to the clock's time."""
+        if name not in BY_NAME:
+            raise ValueError(f'no control-table item named {name!r}')
+        with self.lock:
+            servo = self._servo(servo_id)
+            servo.advance(self._clock())
+            return servo.memory.get(name)
+
+    def registers(self, servo_id: int) -> dict[str, int]:
+        """Return every register of a servo by name, brought up to the clock's time."""
+        with self.lock:
+            servo = self._servo(servo_id)
+            servo.advance(self._clock())
+            return servo.memory.snapshot()
+
+    def servo(self, servo_id: int) -> SimServo:
+        """Return the SimServo with this id (tests and tools)."""
+        with self.lock:
+            return self._servo(servo_id)
+
+    # ---- fault injection ----------------------------------------------------------------------
+    def set_drop(self, servo_id: int, probability: float) -> None:
+        """Lose this servo's status packets with the given probability."""
+        with self.lock:
+            self._slot(servo_id).drop_probability = _probability(probability)
+
+    def set_corrupt(self, servo_id: int, probability: float) -> None:
+        """Corrupt this servo's status packets with the given probability."""
+        with self.lock:
+            self._slot(servo_id).corrupt_probability = _probability(probability)
+
+    def inject_error(self, servo_id: int, kind: str) -> None:
+        """Latch a hardware error: overload, overheat, voltage, encoder or shock."""
+        if kind not in ERROR_KINDS:
+            raise ValueError(f'unknown error kind {kind!r}; one of {", ".join(ERROR_KINDS)}')
+        with self.lock:
+            servo = self._servo(servo_id)
+            servo.advance(self._clock())
+            if servo.powered:
+                servo.latch_errors(ERROR_KINDS[kind])
+
+    def powercycle(self, servo_id: int) -> None:
+        """Cut the power and restore it: RAM defaults, torque off, boot time before it answers."""
+        with self.lock:
+            slot = self._slot(servo_id)
+            now_s = self._clock()
+            slot.servo.power_off(now_s)
+            if slot.plugged:
+                slot.servo.power_on(now_s)
+
+    def unplug(self, servo_id: int) -> None:
+        """Take the servo off the bus (and off the power)."""
+        with self.lock:
+            slot = self._slot(servo_id)
+            slot.servo.power_off(self._clock())
+            slot.plugged = False
+
+    def plug(self, servo_id: int) -> None:
+        """Put the servo back on the bus: a power-on."""
+        with self.lock:
+            slot = self._slot(servo_id)
+            if slot.plugged:
+                return
+            slot.plugged = True
+            slot.servo.power_on(self._clock())
+
+    def set_load(self, servo_id: int, load_nm: float) -> None:
+        """Apply a resisting torque at the horn."""
+        load_nm = float(load_nm)
+        if not load_nm >= 0.0 or load_nm == float('inf'):
+            raise ValueError(f'load must be a finite torque >= 0 N.m, got {load_nm}')
+        with self.lock:
+            servo = self._servo(servo_id)
+            servo.advance(self._clock())
+            servo.dynamics.set_load(load_nm)
+
+    def set_voltage(self, servo_id: int, volts: float) -> None:
+        """Set the servo's supply voltage."""
+        volts = float(volts)
+        if not 0.0 <= volts <= 30.0:
+            raise ValueError(f'voltage must be within 0..30 V, got {volts}')
+        with self.lock:
+            servo = self._servo(servo_id)
+            servo.advance(self._clock())
+            servo.dynamics.set_input_voltage(volts)
+
+    # ---- helpers ------------------------------------------------------------------------------
+    def _slot(self, servo_id: int) -> _Slot:
+        for slot in self._slots:
+            if slot.servo.servo_id == servo_id:
+                return slot
+        known = sorted(slot.servo.servo_id for slot in self._slots)
+        raise ValueError(f'no servo with id {servo_id!r} on the bus (ids: {known})')
+
+    def _servo(self, servo_id: int) -> SimServo:
+        return self._slot(servo_id).servo
+
+
+def _probability(probability: float) -> float:
+    probability = float(probability)
+    if not 0.0 <= probability <= 1.0:
+        raise ValueError(f'probability must be within 0..1, got {probability}')
+    return probability
+
+
+def _reply_order(packet: Packet) -> dict[int, int] | None:
+    """Return id -> wire rank for packets answered by several servos, None for id order."""
+    params = packet.params
+    if packet.instruction == Instruction.SYNC_READ:
+        ids = params[4:]
+    elif packet.instruction == Instruction.BULK_READ and packet.servo_id == BROADCAST_ID:
+        ids = params[0::5] if len(params) % 5 == 0 else b''
+    else:
+        return None
+    order: dict[int, int] = {}
+    for rank, servo_id in enumerate(ids):
+        order.setdefault(servo_id, rank)
+    return order
