@@ -1,0 +1,508 @@
+"""
+Physics, controllers and profiles of one simulated XM430-class servo.
+
+The servo (helper CORE) owns the control table and calls ServoDynamics: advance() runs the
+controllers and the motor for a time span, the on_* hooks react to writes. Choices where the seed
+is silent or ambiguous (see also motor.py and velocity_profile.py):
+
+* Control period 1 ms: advance() runs whole periods and carries the remainder to the next call.
+  While the servo is frozen (horn stuck by friction or load, constant output, no profile running,
+  integrators idle) the rest of a span is jumped in one go, so an idle hour costs microseconds.
+* Gain conversions of the seed (KpP = P/128, KpI = I/65536, KpD = D/16, Kff1 = FF1/4,
+  Kff2 = FF2/4, KvP = P/128, KvI = I/65536; the seed's "65563" is read as 65536); every output
+  is in PWM raw units (885 = 100 %). Position error in pulses, its derivative and the velocity
+  feed-forward in velocity units (0.229 rpm), the acceleration feed-forward in acceleration units,
+  integrals sum the error once per 1 ms sample. The velocity loop takes its error in pulse/s
+  (velocity units times beta = 15.63, the seed's "conversion coefficient of position and
+  velocity"), which makes the default gains (P 50, I 1920) settle in tens of ms.
+* Anti-windup: an integrator does not integrate while the output is saturated in the direction
+  of the error, and its contribution is clamped to the output limit.
+* Current-based position (mode 5): the PID + feed-forward output is a voltage command (as in mode
+  3); it is turned into the current it would drive at the present speed, limited by goal_current,
+  and the current loop (an exact inverse of the coreless motor's resistive model) produces the
+  PWM, limited by goal_pwm. Unsaturated, mode 5 thus moves exactly like mode 3.
+* Moving Status: following error (0x08) when |position_trajectory - present_position| exceeds
+  FOLLOWING_ERROR_PULSE (1/16 turn) during or after a non-step profile (with a step profile the
+  trajectory is the goal itself, so the distance is travel, not a tracking failure); in-position
+  (0x01) when no profile is running and the horn is within IN_POSITION_PULSE of the (limited)
+  goal. Both only with torque on in position modes; 0x02 only for position profiles; the profile
+  type bits keep the type of the last profile (velocity mode: 0x30 when Profile Acceleration is
+  set, else 0x00). With torque off Moving Status is 0.
+* Overload (0x20): the controller demands more than its output limit (PWM limit, or Goal PWM in
+  PWM mode at the PWM limit) while the motor is loaded (current above half the stall current at
+  the present supply), continuously for more than OVERLOAD_TIME_S. Current limiting by Goal
+  Current in mode 5 is regulation, not overload.
+* Torque on holds the present position (the trajectory restarts there); a goal written with
+  torque off is not acted on. Torque off is free-run: the windings are open, no current flows,
+  the horn coasts until friction and load stop it.
+"""
+
+import math
+from typing import Optional, Protocol
+
+from dxl_servo_driver.sim import motor
+from dxl_servo_driver.sim.velocity_profile import (
+    plan_position, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ramp_velocity)
+
+CONTROL_PERIOD_S = 0.001
+FOLLOWING_ERROR_PULSE = 256
+IN_POSITION_PULSE = 20
+OVERLOAD_TIME_S = 1.0
+OVERLOAD_CURRENT_FRACTION = 0.5
+
+MODE_CURRENT = 0
+MODE_VELOCITY = 1
+MODE_POSITION = 3
+MODE_EXTENDED_POSITION = 4
+MODE_CURRENT_BASED_POSITION = 5
+MODE_PWM = 16
+POSITION_MODES = (MODE_POSITION, MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION)
+
+MOVING_STATUS_FOLLOWING_ERROR = 0x08
+MOVING_STATUS_PROFILE_ONGOING = 0x02
+MOVING_STATUS_IN_POSITION = 0x01
+
+ERROR_INPUT_VOLTAGE = 0x01
+ERROR_OVERHEATING = 0x04
+ERROR_OVERLOAD = 0x20
+
+_VELOCITY_UNIT_PER_RAD_S = motor.rad_s_to_rpm(1.0) / motor.RPM_PER_VELOCITY_UNIT
+# beta: pulse/s per velocity unit, used by the velocity loop.
+_BETA_PULSE_S_PER_UNIT = motor.RPM_PER_VELOCITY_UNIT * motor.PULSES_PER_REV / 60.0
+_INT32_MIN = -(1 << 31)
+_INT32_MAX = (1 << 31) - 1
+
+
+class RegisterStore(Protocol):
+    """Raw access to a servo's control table by snake_case name (provided by the servo)."""
+
+    def get(self, name: str) -> int:
+        """Return the register value (signed per the item)."""
+        ...
+
+    def set(self, name: str, value: int) -> None:  # noqa: A003 (register store protocol)
+        """Store a register value, bypassing access and range checks."""
+        ...
+
+
+def _clamp_int(value: float, low: int, high: int) -> int:
+    if value != value:  # NaN never reaches a register
+        return 0
+    if value < low:
+        return low
+    if value > high:
+        return high
+    return int(round(value))
+
+
+class ServoDynamics:
+    """Motor, gearbox, controllers, profiles and thermal model of one servo."""
+
+    def __init__(self, input_voltage_v: float = 12.0, ambient_c: float = 25.0,
+                 start_position_pulse: float = 2048.0) -> None:
+        self.horn_position_pulse = float(start_position_pulse)
+        self.current_a = 0.0
+        self.temperature_c = float(ambient_c)
+        self.ambient_c = float(ambient_c)
+        self.input_voltage_v = max(0.0, float(input_voltage_v))
+        self.load_nm = 0.0
+        self.duty = 0.0
+        self._omega_rad_s = 0.0
+        self._turn_offset_pulse = 0
+        self._mode: Optional[int] = None
+        self._torque_on = False
+        self._remainder_s = 0.0
+        self._overload_s = 0.0
+        # Position profile state, in horn coordinates (pulses without turn or homing offset).
+        self._profile: Optional[PositionProfile] = None
+        self._profile_t_ms = 0.0
+        self._profile_kind = PROFILE_STEP
+        self._traj_pulse = self.horn_position_pulse
+        self._traj_vel_pulse_ms = 0.0
+        self._traj_acc_pulse_ms2 = 0.0
+        self._target_pulse = self.horn_position_pulse
+        # Velocity mode profile state, in velocity units.
+        self._vel_traj_raw = 0.0
+        self._pos_integral = 0.0
+        self._vel_integral = 0.0
+
+    # ----------------------------------------------------------------- readable physical state
+    @property
+    def velocity_pulse_s(self) -> float:
+        """Horn velocity in pulse/s."""
+        return self._omega_rad_s * motor.PULSE_PER_RAD
+
+    @property
+    def motor_torque_nm(self) -> float:
+        """Electromagnetic torque at the horn (before friction and load)."""
+        return motor.TORQUE_CONSTANT_NM_A * self.current_a
+
+    # ----------------------------------------------------------------- hooks
+    def set_load(self, load_nm: float) -> None:
+        """Set the resisting torque at the horn (a brake: opposes motion, holds below it)."""
+        value = abs(float(load_nm))
+        self.load_nm = value if math.isfinite(value) else 0.0
+
+    def set_input_voltage(self, volts: float) -> None:
+        """Set the supply voltage."""
+        value = float(volts)
+        self.input_voltage_v = max(0.0, value) if math.isfinite(value) else 0.0
+
+    def reset_controllers(self) -> None:
+        """Clear integrators, overload timer and profile state; hold the present position."""
+        self._pos_integral = 0.0
+        self._vel_integral = 0.0
+        self._overload_s = 0.0
+        self._profile = None
+        self._profile_t_ms = 0.0
+        self._profile_kind = PROFILE_STEP
+        self._traj_pulse = self.horn_position_pulse
+        self._traj_vel_pulse_ms = 0.0
+        self._traj_acc_pulse_ms2 = 0.0
+        self._target_pulse = self.horn_position_pulse
+        self._vel_traj_raw = 0.0
+
+    def on_torque(self, enabled: bool, regs: RegisterStore) -> None:
+        """Torque enable changed: restart the controllers from the present state."""
+        self._torque_on = bool(enabled)
+        self.reset_controllers()
+        if self._torque_on:
+            self._vel_traj_raw = self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S
+        else:
+            self.duty = 0.0
+            self.current_a = 0.0
+
+    def on_goal_position(self, regs: RegisterStore) -> None:
+        """Goal position written: plan a new profile from the present trajectory state."""
+        mode = regs.get('operating_mode')
+        if mode not in POSITION_MODES or not regs.get('torque_enable'):
+            return
+        if self._mode != mode or not self._torque_on:
+            self._sync_mode_and_torque(regs)
+        goal = regs.get('goal_position')
+        if mode == MODE_POSITION:
+            low = regs.get('min_position_limit')
+            high = regs.get('max_position_limit')
+            goal = min(max(goal, low), high) if low <= high else goal
+        goal_pulse = float(goal - self._turn_offset_pulse - regs.get('homing_offset'))
+        profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
+                                regs.get('profile_velocity'), regs.get('profile_acceleration'))
+        self._profile = profile
+        self._profile_t_ms = 0.0
+        self._profile_kind = profile.kind
+        self._target_pulse = goal_pulse
+        if profile.duration_ms <= 0.0:
+            self._traj_pulse = goal_pulse
+            self._traj_vel_pulse_ms = 0.0
+            self._traj_acc_pulse_ms2 = 0.0
+
+    def on_goal_velocity(self, regs: RegisterStore) -> None:
+        """Goal velocity written: the ramp reads it every period (so override is built in)."""
+        if self._mode != regs.get('operating_mode'):
+            self._sync_mode_and_torque(regs)
+
+    def reinit_present_position(self, regs: RegisterStore) -> None:
+        """Present position := horn position within one turn + homing offset."""
+        turns = math.floor(self.horn_position_pulse / motor.PULSES_PER_REV)
+        self._turn_offset_pulse = -motor.PULSES_PER_REV * turns
+        regs.set('present_position', self._present_position_raw(regs.get('homing_offset')))
+
+    # ----------------------------------------------------------------- simulation
+    def _sync_mode_and_torque(self, regs: RegisterStore) -> None:
+        mode = regs.get('operating_mode')
+        torque = bool(regs.get('torque_enable'))
+        if mode != self._mode:
+            self._mode = mode
+            self.on_torque(torque, regs)
+        elif torque != self._torque_on:
+            self.on_torque(torque, regs)
+
+    def _present_position_raw(self, homing_offset: int) -> int:
+        value = self.horn_position_pulse + self._turn_offset_pulse + homing_offset
+        return _clamp_int(value, _INT32_MIN, _INT32_MAX)
+
+    def advance(self, dt_s: float, regs: RegisterStore) -> int:
+        """
+        Run the controllers and the motor for dt_s seconds and publish the present registers.
+
+        Returns the Hardware Error Status bits detected in the span (not latched here).
+        """
+        dt_s = float(dt_s)
+        if not math.isfinite(dt_s) or dt_s < 0.0:
+            dt_s = 0.0
+        self._sync_mode_and_torque(regs)
+        mode = self._mode
+        torque_on = self._torque_on
+        volts = self.input_voltage_v
+
+        total_s = self._remainder_s + dt_s
+        steps = int(total_s / CONTROL_PERIOD_S + 1e-9)
+        self._remainder_s = max(0.0, total_s - steps * CONTROL_PERIOD_S)
+
+        overloaded_span = False
+        if steps > 0:
+            sum_i2, overloaded_span = self._run(steps, regs, mode, torque_on, volts)
+            mean_i2 = sum_i2 / steps
+        else:
+            mean_i2 = self.current_a * self.current_a
+        self.temperature_c = motor.thermal_step(
+            self.temperature_c, self.ambient_c, motor.heat_power_w(mean_i2, volts), dt_s)
+        return self._publish(regs, mode, torque_on, overloaded_span)
+
+    def _run(self, steps: int, regs: RegisterStore, mode: Optional[int], torque_on: bool,
+             volts: float) -> tuple[float, bool]:
+        """Run whole control periods; return (sum of i^2 over the periods, overload seen)."""
+        get = regs.get
+        dt = CONTROL_PERIOD_S
+        dt_ms = dt * 1000.0
+        r_ohm = motor.RESISTANCE_OHM
+        kt = motor.TORQUE_CONSTANT_NM_A
+        ke = motor.BACK_EMF_V_S_RAD
+        c1 = dt / motor.INERTIA_KG_M2
+        ktr = kt / r_ohm
+        damping = (kt * ke / r_ohm + motor.VISCOUS_FRICTION_NM_S_RAD) if torque_on \
+            else motor.VISCOUS_FRICTION_NM_S_RAD
+        denominator = 1.0 + c1 * damping
+        friction = motor.COULOMB_FRICTION_NM + self.load_nm
+        pulse_per_rad_dt = motor.PULSE_PER_RAD * dt
+        unit_per_rad_s = _VELOCITY_UNIT_PER_RAD_S
+        full = float(motor.PWM_FULL_RAW)
+        volts_eff = volts if volts > 1e-6 else 1e-6
+        overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
+
+        pwm_limit = max(0, get('pwm_limit'))
+        out_limit = float(min(abs(get('goal_pwm')), pwm_limit))
+        if mode == MODE_PWM:
+            out_limit = float(pwm_limit)
+        current_limit_a = min(abs(get('goal_current')), max(0, get('current_limit'))) \
+            * motor.AMPERE_PER_CURRENT_UNIT
+        goal_current_a = max(-current_limit_a, min(current_limit_a, get('goal_current')
+                                                   * motor.AMPERE_PER_CURRENT_UNIT))
+        goal_pwm = float(max(-pwm_limit, min(pwm_limit, get('goal_pwm'))))
+        position_mode = mode in POSITION_MODES
+        kpp = kpi = kpd = kff1 = kff2 = kvp = kvi = 0.0
+        goal_velocity = 0.0
+        acceleration_raw = 0
+        if position_mode:
+            kpp = get('position_p_gain') / 128.0
+            kpi = get('position_i_gain') / 65536.0
+            kpd = get('position_d_gain') / 16.0
+            kff1 = get('feedforward_1st_gain') / 4.0
+            kff2 = get('feedforward_2nd_gain') / 4.0
+        elif mode == MODE_VELOCITY:
+            kvp = get('velocity_p_gain') / 128.0 * _BETA_PULSE_S_PER_UNIT
+            kvi = get('velocity_i_gain') / 65536.0 * _BETA_PULSE_S_PER_UNIT
+            goal_velocity = float(get('goal_velocity'))
+            acceleration_raw = get('profile_acceleration')
+
+        omega = self._omega_rad_s
+        pos = self.horn_position_pulse
+        duty = self.duty
+        current = self.current_a
+        overload_s = self._overload_s
+        pos_integral = self._pos_integral
+        vel_integral = self._vel_integral
+        profile = self._profile
+        profile_t = self._profile_t_ms
+        traj_p = self._traj_pulse
+        traj_v = self._traj_vel_pulse_ms
+        traj_a = self._traj_acc_pulse_ms2
+        vel_traj = self._vel_traj_raw
+        sum_i2 = 0.0
+        overload_seen = False
+        frozen_count = 0
+        step = 0
+        while step < steps:
+            step += 1
+            previous_duty = duty
+            previous_omega = omega
+            integral_moved = False
+            saturated = False
+            # ---- controller: duty in [-1, 1]
+            if not torque_on:
+                duty = 0.0
+            elif mode == MODE_PWM:
+                duty = goal_pwm / full
+                saturated = pwm_limit > 0 and abs(goal_pwm) >= pwm_limit
+            elif mode == MODE_CURRENT:
+                demand = (r_ohm * goal_current_a + ke * self._predict_omega(
+                    omega, goal_current_a, friction, c1)) / volts_eff * full
+                saturated = abs(demand) > out_limit
+                duty = max(-out_limit, min(out_limit, demand)) / full
+            elif position_mode:
+                if profile is not None:
+                    profile_t += dt_ms
+                    traj_p, traj_v, traj_a = profile.sample(profile_t)
+                    if profile_t >= profile.duration_ms:
+                        profile = None
+                error = traj_p - pos
+                traj_v_raw = traj_v * 64.0
+                demand = kpp * error + kpi * pos_integral \
+                    + kpd * (traj_v_raw - omega * unit_per_rad_s) \
+                    + kff1 * traj_v_raw + kff2 * traj_a * 4096.0
+                if mode == MODE_CURRENT_BASED_POSITION:
+                    target_a = (demand / full * volts - ke * omega) / r_ohm
+                    if target_a > current_limit_a:
+                        target_a = current_limit_a
+                    elif target_a < -current_limit_a:
+                        target_a = -current_limit_a
+                    demand = (r_ohm * target_a + ke * self._predict_omega(
+                        omega, target_a, friction, c1)) / volts_eff * full
+                saturated = abs(demand) > out_limit
+                if kpi != 0.0 and error != 0.0 and not (
+                        saturated and (error > 0.0) == (demand > 0.0)):
+                    pos_integral += error
+                    bound = out_limit / kpi
+                    pos_integral = max(-bound, min(bound, pos_integral))
+                    integral_moved = True
+                duty = max(-out_limit, min(out_limit, demand)) / full
+            elif mode == MODE_VELOCITY:
+                if vel_traj != goal_velocity:
+                    vel_traj = ramp_velocity(vel_traj, goal_velocity, acceleration_raw, dt_ms)
+                    integral_moved = True
+                error = vel_traj - omega * unit_per_rad_s
+                demand = kvp * error + kvi * vel_integral
+                saturated = abs(demand) > out_limit
+                if kvi != 0.0 and error != 0.0 and not (
+                        saturated and (error > 0.0) == (demand > 0.0)):
+                    vel_integral += error
+                    bound = out_limit / kvi
+                    vel_integral = max(-bound, min(bound, vel_integral))
+                    integral_moved = True
+                duty = max(-out_limit, min(out_limit, demand)) / full
+            else:
+                duty = 0.0
+            # ---- motor and gearbox (implicit in the linear terms, stiction at rest)
+            drive = ktr * duty * volts if torque_on else 0.0
+            if omega == 0.0:
+                if drive > friction:
+                    omega = c1 * (drive - friction) / denominator
+                elif drive < -friction:
+                    omega = c1 * (drive + friction) / denominator
+            elif omega > 0.0:
+                omega = (omega + c1 * (drive - friction)) / denominator
+                if omega < 0.0:
+                    omega = 0.0
+            else:
+                omega = (omega + c1 * (drive + friction)) / denominator
+                if omega > 0.0:
+                    omega = 0.0
+            pos += 0.5 * (previous_omega + omega) * pulse_per_rad_dt
+            current = (duty * volts - ke * omega) / r_ohm if torque_on else 0.0
+            sum_i2 += current * current
+            if saturated and abs(current) > overload_current:
+                overload_s += dt
+                if overload_s > OVERLOAD_TIME_S:
+                    overload_seen = True
+            else:
+                overload_s = 0.0
+            # ---- idle fast path: nothing will change in the remaining periods
+            if omega == 0.0 and previous_omega == 0.0 and duty == previous_duty \
+                    and profile is None and not integral_moved:
+                frozen_count += 1
+                if frozen_count >= 2 and step < steps:
+                    rest = steps - step
+                    sum_i2 += current * current * rest
+                    if saturated and abs(current) > overload_current:
+                        overload_s += dt * rest
+                        if overload_s > OVERLOAD_TIME_S:
+                            overload_seen = True
+                    step = steps
+            else:
+                frozen_count = 0
+
+        self._omega_rad_s = omega
+        self.horn_position_pulse = pos
+        self.duty = duty
+        self.current_a = current
+        self._overload_s = overload_s
+        self._pos_integral = pos_integral
+        self._vel_integral = vel_integral
+        self._profile = profile
+        self._profile_t_ms = profile_t
+        if position_mode and torque_on:
+            self._traj_pulse = traj_p
+            self._traj_vel_pulse_ms = traj_v
+            self._traj_acc_pulse_ms2 = traj_a
+        elif not torque_on:
+            self._traj_pulse = pos
+            self._traj_vel_pulse_ms = 0.0
+            self._traj_acc_pulse_ms2 = 0.0
+            self._target_pulse = pos
+        self._vel_traj_raw = vel_traj
+        return sum_i2, overload_seen
+
+    @staticmethod
+    def _predict_omega(omega: float, current_a: float, friction_nm: float, c1: float) -> float:
+        """
+        Speed at the end of the period if current_a flows (current loop's back-EMF estimate).
+
+        A real current loop runs far faster than the 1 ms period; anticipating the speed change
+        keeps the held current exact while the horn accelerates.
+        """
+        torque = motor.TORQUE_CONSTANT_NM_A * current_a - motor.VISCOUS_FRICTION_NM_S_RAD * omega
+        if omega > 0.0:
+            torque -= friction_nm
+        elif omega < 0.0:
+            torque += friction_nm
+        elif abs(torque) <= friction_nm:
+            return 0.0
+        else:
+            torque -= math.copysign(friction_nm, torque)
+        return omega + c1 * torque
+
+    def _publish(self, regs: RegisterStore, mode: Optional[int], torque_on: bool,
+                 overloaded_span: bool) -> int:
+        """Write the present registers; return the detected error bits."""
+        get = regs.get
+        put = regs.set
+        homing = get('homing_offset')
+        offset = self._turn_offset_pulse + homing
+        velocity_raw = _clamp_int(self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S,
+                                  _INT32_MIN, _INT32_MAX)
+        put('present_position', self._present_position_raw(homing))
+        put('present_velocity', velocity_raw)
+        put('present_current', _clamp_int(self.current_a / motor.AMPERE_PER_CURRENT_UNIT,
+                                          -32768, 32767))
+        put('present_pwm', _clamp_int(self.duty * motor.PWM_FULL_RAW, -32768, 32767))
+        voltage_raw = _clamp_int(self.input_voltage_v / motor.VOLT_PER_VOLTAGE_UNIT, 0, 65535)
+        put('present_input_voltage', voltage_raw)
+        temperature_raw = _clamp_int(self.temperature_c, 0, 255)
+        put('present_temperature', temperature_raw)
+
+        position_mode = mode in POSITION_MODES
+        profile_on = position_mode and torque_on and self._profile is not None
+        status = 0
+        if position_mode:
+            put('velocity_trajectory', _clamp_int(self._traj_vel_pulse_ms * 64.0,
+                                                  _INT32_MIN, _INT32_MAX))
+            put('position_trajectory', _clamp_int(self._traj_pulse + offset,
+                                                  _INT32_MIN, _INT32_MAX))
+            if torque_on:
+                status = self._profile_kind
+                if profile_on:
+                    status |= MOVING_STATUS_PROFILE_ONGOING
+                elif abs(self._target_pulse - self.horn_position_pulse) <= IN_POSITION_PULSE:
+                    status |= MOVING_STATUS_IN_POSITION
+                if self._profile_kind != PROFILE_STEP and \
+                        abs(self._traj_pulse - self.horn_position_pulse) > FOLLOWING_ERROR_PULSE:
+                    status |= MOVING_STATUS_FOLLOWING_ERROR
+        elif mode == MODE_VELOCITY:
+            put('velocity_trajectory', _clamp_int(self._vel_traj_raw if torque_on else 0.0,
+                                                  _INT32_MIN, _INT32_MAX))
+            if torque_on and get('profile_acceleration') > 0:
+                status = PROFILE_TRAPEZOIDAL
+        else:
+            put('velocity_trajectory', 0)
+        put('moving_status', status)
+        moving = profile_on or abs(velocity_raw) > get('moving_threshold')
+        put('moving', 1 if moving else 0)
+
+        errors = 0
+        if voltage_raw < get('min_voltage_limit') or voltage_raw > get('max_voltage_limit'):
+            errors |= ERROR_INPUT_VOLTAGE
+        if temperature_raw > get('temperature_limit'):
+            errors |= ERROR_OVERHEATING
+        if overloaded_span:
+            errors |= ERROR_OVERLOAD
+        return errors

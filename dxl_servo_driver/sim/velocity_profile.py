@@ -1,0 +1,191 @@
+"""
+Velocity profiles of the seed's "Profile Velocity(112)" section, as pure functions.
+
+Units (from the seed's formulas t1 = 64 * V / A ms and t2 = 64 * dPos / V ms):
+
+* one velocity unit (0.229 rpm = 0.01563 pulse/ms) is taken as exactly 1/64 pulse per ms, so a
+  profile velocity V moves V / 64 pulses per ms (0.05 % off the true unit; the seed's formulas use
+  the same rounding);
+* one acceleration unit is 1/64 velocity unit per ms, so A adds A / 64 velocity units per ms, that
+  is A / 4096 pulses per ms^2.
+
+Derivation of the triangular case (start at rest, accelerate at a = A / 4096 pulse/ms^2 to a peak
+v_p, decelerate at a back to 0): dPos = v_p^2 / a, so v_p = sqrt(a * dPos) pulse/ms; in velocity
+units V_tri = 64 * v_p = sqrt(A * dPos). The seed uses the triangular profile when
+V_tri <= V. Its travel time is t3 = 2 * v_p / a = 2 * 64 * V_tri / A = 128 * sqrt(dPos / A) ms.
+The trapezoid accelerates for t1 = 64 * V / A ms, cruises and decelerates for t1, and takes
+t3 = t1 + t2 with t2 = 64 * dPos / V ms.
+
+Jerk smoothing is not modelled (the seed says the real travel time may be longer than t3); the
+simulated trajectory ends exactly at t3.
+"""
+
+from dataclasses import dataclass
+import math
+
+# Moving Status (123) profile type bits; the seed's table repeats "Rectangular" for 0x00, which
+# is the Step profile (no profile).
+PROFILE_STEP = 0x00
+PROFILE_RECTANGULAR = 0x10
+PROFILE_TRIANGULAR = 0x20
+PROFILE_TRAPEZOIDAL = 0x30
+
+VELOCITY_UNIT_PULSE_MS = 1.0 / 64.0       # one profile velocity unit in pulse/ms
+ACCELERATION_UNIT_PULSE_MS2 = 1.0 / 4096.0  # one profile acceleration unit in pulse/ms^2
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A span of constant acceleration: start time, position, velocity, acceleration, length."""
+
+    start_ms: float
+    start_pulse: float
+    start_velocity_pulse_ms: float
+    acceleration_pulse_ms2: float
+    duration_ms: float
+
+
+class PositionProfile:
+    """A planned position trajectory: constant-acceleration segments ending at rest at the goal."""
+
+    def __init__(self, kind: int, start_pulse: float, goal_pulse: float,
+                 segments: list[Segment]) -> None:
+        self.kind = kind
+        self.start_pulse = start_pulse
+        self.goal_pulse = goal_pulse
+        self.segments = segments
+        self.duration_ms = (segments[-1].start_ms + segments[-1].duration_ms) if segments else 0.0
+        self._index = 0
+
+    def sample(self, t_ms: float) -> tuple[float, float, float]:
+        """Return (position pulse, velocity pulse/ms, acceleration pulse/ms^2) at t_ms."""
+        if t_ms >= self.duration_ms:
+            return self.goal_pulse, 0.0, 0.0
+        segments = self.segments
+        index = self._index
+        if segments[index].start_ms > t_ms:
+            index = 0  # time went back (not expected): search from the start
+        while segments[index].start_ms + segments[index].duration_ms <= t_ms:
+            index += 1
+        self._index = index
+        seg = segments[index]
+        tau = t_ms - seg.start_ms
+        acc = seg.acceleration_pulse_ms2
+        vel = seg.start_velocity_pulse_ms + acc * tau
+        pos = seg.start_pulse + (seg.start_velocity_pulse_ms + 0.5 * acc * tau) * tau
+        return pos, vel, acc
+
+
+def classify(profile_velocity_raw: int, profile_acceleration_raw: int, delta_pulse: float) -> int:
+    """Profile type the seed's selection table gives for a start at rest."""
+    if profile_velocity_raw == 0:
+        return PROFILE_STEP
+    if profile_acceleration_raw == 0:
+        return PROFILE_RECTANGULAR
+    v_tri = math.sqrt(profile_acceleration_raw * abs(delta_pulse))
+    return PROFILE_TRIANGULAR if v_tri <= profile_velocity_raw else PROFILE_TRAPEZOIDAL
+
+
+def travel_time_ms(profile_velocity_raw: int, profile_acceleration_raw: int,
+                   delta_pulse: float) -> float:
+    """Seed formula for the travel time t3 (ms) of a move starting at rest."""
+    kind = classify(profile_velocity_raw, profile_acceleration_raw, delta_pulse)
+    distance = abs(delta_pulse)
+    if kind == PROFILE_STEP:
+        return 0.0
+    t2_ms = 64.0 * distance / profile_velocity_raw
+    if kind == PROFILE_RECTANGULAR:
+        return t2_ms
+    if kind == PROFILE_TRIANGULAR:
+        return 128.0 * math.sqrt(distance / profile_acceleration_raw)
+    return 64.0 * profile_velocity_raw / profile_acceleration_raw + t2_ms
+
+
+def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse: float,
+                  profile_velocity_raw: int, profile_acceleration_raw: int) -> PositionProfile:
+    """
+    Plan a move from (start, start velocity) to rest at goal.
+
+    A non-zero start velocity is the seed's velocity override: the new profile continues from the
+    present trajectory velocity (decelerating first when moving away from the goal or too fast to
+    stop before it).
+    """
+    if profile_velocity_raw <= 0:
+        return PositionProfile(PROFILE_STEP, start_pulse, goal_pulse, [])
+    vmax = profile_velocity_raw * VELOCITY_UNIT_PULSE_MS
+    segments: list[Segment] = []
+    if profile_acceleration_raw <= 0:
+        # Infinite acceleration: the velocity jumps to V and back to 0.
+        distance = goal_pulse - start_pulse
+        if distance != 0.0:
+            direction = 1.0 if distance > 0.0 else -1.0
+            segments.append(Segment(0.0, start_pulse, direction * vmax, 0.0,
+                                    abs(distance) / vmax))
+        return PositionProfile(PROFILE_RECTANGULAR, start_pulse, goal_pulse, segments)
+
+    acc = profile_acceleration_raw * ACCELERATION_UNIT_PULSE_MS2
+    t_ms = 0.0
+    pos = start_pulse
+    vel = start_velocity_pulse_ms
+
+    def add(accel: float, duration_ms: float) -> None:
+        nonlocal t_ms, pos, vel
+        if duration_ms <= 0.0:
+            return
+        segments.append(Segment(t_ms, pos, vel, accel, duration_ms))
+        pos += (vel + 0.5 * accel * duration_ms) * duration_ms
+        vel += accel * duration_ms
+        t_ms += duration_ms
+
+    kind = PROFILE_TRAPEZOIDAL
+    for _ in range(3):  # at most: stop, (reverse) plan; the loop bound guards float corner cases
+        distance = goal_pulse - pos
+        if distance == 0.0 and vel == 0.0:
+            break
+        direction = 1.0 if distance > 0.0 or (distance == 0.0 and vel > 0.0) else -1.0
+        speed = direction * vel          # >= 0 when moving towards the goal
+        remaining = abs(distance)
+        if speed < 0.0 or speed * speed / (2.0 * acc) > remaining:
+            # Moving away, or too fast to stop in time: brake to rest first, then plan again.
+            add(-acc if vel > 0.0 else acc, abs(vel) / acc)
+            vel = 0.0
+            continue
+        if speed > vmax:
+            decel_ms = (speed - vmax) / acc
+            d1 = (speed * speed - vmax * vmax) / (2.0 * acc)
+            d3 = vmax * vmax / (2.0 * acc)
+            add(-direction * acc, decel_ms)
+            add(0.0, max(0.0, remaining - d1 - d3) / vmax)
+            add(-direction * acc, vmax / acc)
+            kind = PROFILE_TRAPEZOIDAL
+        else:
+            d1 = (vmax * vmax - speed * speed) / (2.0 * acc)
+            d3 = vmax * vmax / (2.0 * acc)
+            if d1 + d3 < remaining:
+                add(direction * acc, (vmax - speed) / acc)
+                add(0.0, (remaining - d1 - d3) / vmax)
+                add(-direction * acc, vmax / acc)
+                kind = PROFILE_TRAPEZOIDAL
+            else:
+                peak = math.sqrt((2.0 * acc * remaining + speed * speed) / 2.0)
+                add(direction * acc, (peak - speed) / acc)
+                add(-direction * acc, peak / acc)
+                kind = PROFILE_TRIANGULAR
+        break
+    return PositionProfile(kind, start_pulse, goal_pulse, segments)
+
+
+def ramp_velocity(velocity_raw: float, target_raw: float, acceleration_raw: int,
+                  dt_ms: float) -> float:
+    """
+    Velocity-mode profile: move velocity_raw towards target_raw for dt_ms.
+
+    Profile acceleration A adds A / 64 velocity units per ms (so t1 = 64 * goal_velocity / A ms);
+    A = 0 is the step profile (the target applies at once).
+    """
+    if acceleration_raw <= 0:
+        return target_raw
+    step = acceleration_raw * dt_ms / 64.0
+    if velocity_raw < target_raw:
+        return min(target_raw, velocity_raw + step)
+    return max(target_raw, velocity_raw - step)
