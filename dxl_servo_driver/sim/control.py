@@ -1,0 +1,270 @@
+"""
+Control lines of `virtual_bus` (fault injection and inspection), parsed and executed.
+
+Pure: no I/O. `parse` turns a line into a Command or raises ControlError; `execute` runs a Command
+against a bus and returns the one answer line; `handle_line` does both and never raises.
+
+Commands (SPEC section 3, plus inspection):
+  drop ID PROBABILITY          status packets of ID lost with that probability (0..1)
+  corrupt ID PROBABILITY       status packet bytes of ID altered with that probability (0..1)
+  error ID KIND                latch a hardware error: overload|overheat|voltage|encoder|shock
+  powercycle ID                power cut and back
+  unplug ID / plug ID          servo leaves / rejoins the bus
+  load ID NM                   resisting torque at the horn, N*m (>= 0)
+  voltage ID VOLTS             input voltage, V (>= 0)
+  get ID NAME                  one register, by snake_case name or decimal address
+  dump ID                      every register, one line
+  stats                        reply pacing statistics
+  help                         this list
+"""
+
+from dataclasses import dataclass
+import math
+from typing import Callable, Protocol
+
+from dxl_servo_driver import control_table
+
+MAX_SERVO_ID = 252  # 253..255 are reserved / broadcast in Protocol 2.0
+ERROR_KINDS = ('overload', 'overheat', 'voltage', 'encoder', 'shock')
+HELP_TEXT = ('commands: drop ID P | corrupt ID P'
+             ' | error ID overload|overheat|voltage|encoder|shock | powercycle ID'
+             ' | unplug ID | plug ID | load ID NM | voltage ID VOLTS'
+             ' | get ID NAME|ADDRESS | dump ID | stats | help')
+
+# name -> argument kinds after the command word; 'id' servo id, 'prob' 0..1, 'nonneg' float >= 0,
+# 'kind' one of ERROR_KINDS, 'register' name or address
+_SIGNATURES: dict[str, tuple[str, ...]] = {
+    'drop': ('id', 'prob'),
+    'corrupt': ('id', 'prob'),
+    'error': ('id', 'kind'),
+    'powercycle': ('id',),
+    'unplug': ('id',),
+    'plug': ('id',),
+    'load': ('id', 'nonneg'),
+    'voltage': ('id', 'nonneg'),
+    'get': ('id', 'register'),
+    'dump': ('id',),
+    'stats': (),
+    'help': (),
+}
+_USAGE: dict[str, str] = {
+    'drop': 'drop ID PROBABILITY',
+    'corrupt': 'corrupt ID PROBABILITY',
+    'error': 'error ID overload|overheat|voltage|encoder|shock',
+    'powercycle': 'powercycle ID',
+    'unplug': 'unplug ID',
+    'plug': 'plug ID',
+    'load': 'load ID NM',
+    'voltage': 'voltage ID VOLTS',
+    'get': 'get ID NAME|ADDRESS',
+    'dump': 'dump ID',
+    'stats': 'stats',
+    'help': 'help',
+}
+
+
+class ControlError(ValueError):
+    """A control line that cannot be parsed or executed; str() is the message."""
+
+
+class ControlledBus(Protocol):
+    """The SimBus methods the control lines use."""
+
+    def read_register(self, servo_id: int, name: str) -> int:
+        """Read one register."""
+        ...
+
+    def registers(self, servo_id: int) -> dict[str, int]:
+        """Read every register."""
+        ...
+
+    def set_drop(self, servo_id: int, probability: float) -> None:
+        """Lose status packets."""
+        ...
+
+    def set_corrupt(self, servo_id: int, probability: float) -> None:
+        """Alter status packets."""
+        ...
+
+    def inject_error(self, servo_id: int, kind: str) -> None:
+        """Latch a hardware error."""
+        ...
+
+    def powercycle(self, servo_id: int) -> None:
+        """Power cut and back."""
+        ...
+
+    def unplug(self, servo_id: int) -> None:
+        """Leave the bus."""
+        ...
+
+    def plug(self, servo_id: int) -> None:
+        """Rejoin the bus."""
+        ...
+
+    def set_load(self, servo_id: int, load_nm: float) -> None:
+        """Set the resisting torque."""
+        ...
+
+    def set_voltage(self, servo_id: int, volts: float) -> None:
+        """Set the input voltage."""
+        ...
+
+
+@dataclass(frozen=True)
+class Command:
+    """A parsed control line."""
+
+    name: str
+    servo_id: int | None = None
+    value: float | None = None      # probability, N*m or volts
+    text: str | None = None         # error kind or register name (addresses resolved to names)
+
+
+def _parse_id(token: str) -> int:
+    try:
+        servo_id = int(token, 10)
+    except ValueError:
+        raise ControlError(f'bad servo id {token!r}: expected an integer 0..{MAX_SERVO_ID}')
+    if not 0 <= servo_id <= MAX_SERVO_ID:
+        raise ControlError(f'bad servo id {servo_id}: expected 0..{MAX_SERVO_ID}')
+    return servo_id
+
+
+def _parse_float(token: str, what: str) -> float:
+    try:
+        value = float(token)
+    except ValueError:
+        raise ControlError(f'bad {what} {token!r}: expected a number')
+    if not math.isfinite(value):
+        raise ControlError(f'bad {what} {token!r}: expected a finite number')
+    return value
+
+
+def _parse_register(token: str) -> str:
+    key: str | int = int(token, 10) if token.isdigit() else token.lower()
+    try:
+        return control_table.lookup(key).name
+    except KeyError:
+        if isinstance(key, int):
+            raise ControlError(f'no register starts at address {key}')
+        raise ControlError(f'unknown register {token!r}')
+
+
+def parse(line: str) -> Command:
+    """Parse one control line; raise ControlError with a clear message when it is bad."""
+    tokens = line.split()
+    if not tokens:
+        raise ControlError('empty line (try "help")')
+    name = tokens[0].lower()
+    signature = _SIGNATURES.get(name)
+    if signature is None:
+        raise ControlError(f'unknown command {tokens[0]!r} (try "help")')
+    args = tokens[1:]
+    if len(args) != len(signature):
+        raise ControlError(f'usage: {_USAGE[name]}')
+    servo_id: int | None = None
+    value: float | None = None
+    text: str | None = None
+    for kind, token in zip(signature, args):
+        if kind == 'id':
+            servo_id = _parse_id(token)
+        elif kind == 'prob':
+            value = _parse_float(token, 'probability')
+            if not 0.0 <= value <= 1.0:
+                raise ControlError(f'bad probability {token!r}: expected 0..1')
+        elif kind == 'nonneg':
+            what = 'torque (N*m)' if name == 'load' else 'voltage (V)'
+            value = _parse_float(token, what)
+            if value < 0.0:
+                raise ControlError(f'bad {what} {token!r}: expected >= 0')
+        elif kind == 'kind':
+            text = token.lower()
+            if text not in ERROR_KINDS:
+                raise ControlError(
+                    f'bad error kind {token!r}: expected one of {"|".join(ERROR_KINDS)}')
+        else:  # 'register'
+            text = _parse_register(token)
+    return Command(name, servo_id, value, text)
+
+
+def execute(command: Command, bus: ControlledBus,
+            stats_line: Callable[[], str] | None = None) -> str:
+    """
+    Run a parsed command; return its 'ok …' answer.
+
+    Errors reported by the bus (ValueError, KeyError: unknown id, bad argument) become
+    ControlError.
+    """
+    name = command.name
+    sid = command.servo_id
+    try:
+        if name == 'help':
+            return f'ok {HELP_TEXT}'
+        if name == 'stats':
+            text = stats_line() if stats_line is not None else 'replies=0'
+            return f'ok stats {text}'
+        assert sid is not None  # every other command has an id (parse guarantees it)
+        if name in ('drop', 'corrupt'):
+            assert command.value is not None
+            setter = bus.set_drop if name == 'drop' else bus.set_corrupt
+            setter(sid, command.value)
+            return f'ok {name} {sid} {command.value:g}'
+        if name == 'error':
+            assert command.text is not None
+            bus.inject_error(sid, command.text)
+            return f'ok error {sid} {command.text}'
+        if name == 'powercycle':
+            bus.powercycle(sid)
+        elif name == 'unplug':
+            bus.unplug(sid)
+        elif name == 'plug':
+            bus.plug(sid)
+        elif name == 'load':
+            assert command.value is not None
+            bus.set_load(sid, command.value)
+            return f'ok load {sid} {command.value:g}'
+        elif name == 'voltage':
+            assert command.value is not None
+            bus.set_voltage(sid, command.value)
+            return f'ok voltage {sid} {command.value:g}'
+        elif name == 'get':
+            assert command.text is not None
+            return f'ok get {sid} {command.text}={bus.read_register(sid, command.text)}'
+        elif name == 'dump':
+            regs = bus.registers(sid)
+            return f'ok dump {sid} ' + ' '.join(f'{k}={v}' for k, v in regs.items())
+        else:  # pragma: no cover - parse() admits only the names above
+            raise ControlError(f'unknown command {name!r}')
+        return f'ok {name} {sid}'
+    except ControlError:
+        raise
+    except KeyError as exc:
+        raise ControlError(_message(exc)) from exc
+    except ValueError as exc:
+        raise ControlError(_message(exc)) from exc
+
+
+def handle_line(line: str, bus: ControlledBus,
+                stats_line: Callable[[], str] | None = None) -> str | None:
+    """
+    Parse and run one line; return the single answer line ('ok …' or 'error: …').
+
+    Blank lines and '#' comments get no answer (None). Nothing raised by the bus escapes: an
+    unexpected exception is reported as an error line.
+    """
+    stripped = line.strip()
+    if not stripped or stripped.startswith('#'):
+        return None
+    try:
+        return execute(parse(stripped), bus, stats_line)
+    except ControlError as exc:
+        return f'error: {exc}'
+    except Exception as exc:  # noqa: B902 - a control line must never kill the server
+        return f'error: internal: {type(exc).__name__}: {_message(exc)}'
+
+
+def _message(exc: BaseException) -> str:
+    """Return an exception's message on one line (KeyError quotes its argument)."""
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return ' '.join(text.split()) or type(exc).__name__

@@ -1,0 +1,370 @@
+"""
+`virtual_bus`: simulated servos behind a pseudo-terminal, for any serial client.
+
+  virtual_bus --ids 1 2 3 --baud 1000000 --link /tmp/ttyDXL [--timing instant|wire]
+              [--latency-ms F] [--return-delay-time RAW] [--seed N]
+
+Prints the pty's device path as its first stdout line, then answers control lines read on
+standard input (sim/control.py) with one line each. SIGINT/SIGTERM end it cleanly (exit 0) and
+remove the --link symlink. Standard input reaching EOF does not stop it.
+
+The baud rate the client sets on the terminal (including custom rates set through termios2 /
+BOTHER, as pyserial does for 4.5 Mbps) is read from the slave side whenever bytes arrive; servos
+at another baud neither hear nor answer.
+
+Instruction bytes are handed to the servos as soon as they arrive on the pty, so the servo state
+is sampled up to one instruction's transmission time early; with --timing wire the replies are
+then released at the times computed by sim/timing.py.
+"""
+
+import argparse
+import array
+import errno
+import fcntl
+import heapq
+import io
+import os
+import select
+import signal
+import sys
+import termios
+import threading
+import time
+import tty
+from typing import Callable, NoReturn, Sequence, TextIO
+
+from dxl_servo_driver import control_table, protocol
+from dxl_servo_driver.sim import control
+from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.timing import hybrid_wait, LatenessStats, SPIN_S, WireScheduler
+
+PTS_PREFIX = '/dev/pts/'
+READ_CHUNK = 4096
+SETUP_TIMEOUT_S = 3.0  # servos may still be booting when the bus is created
+
+# struct termios2 on the generic Linux ABI (x86, arm, arm64, riscv): four tcflag_t, c_line,
+# c_cc[19], c_ispeed, c_ospeed = 44 bytes; speeds are the 10th and 11th 32-bit words.
+_TERMIOS2_WORDS = 11
+_TERMIOS2_SIZE = 4 * _TERMIOS2_WORDS
+_IOC_READ = 2
+_IOC_WRITE = 1
+TCGETS2 = (_IOC_READ << 30) | (_TERMIOS2_SIZE << 16) | (ord('T') << 8) | 0x2A
+TCSETS2 = (_IOC_WRITE << 30) | (_TERMIOS2_SIZE << 16) | (ord('T') << 8) | 0x2B
+BOTHER = 0o010000
+_CFLAG_WORD = 2
+_ISPEED_WORD = 9
+_OSPEED_WORD = 10
+
+
+def _standard_speeds() -> dict[int, int]:
+    """Termios Bxxx constant -> bps, for the fallback when TCGETS2 is unavailable."""
+    speeds: dict[int, int] = {}
+    for name in dir(termios):
+        if name.startswith('B') and name[1:].isdigit():
+            speeds[getattr(termios, name)] = int(name[1:])
+    return speeds
+
+
+_SPEEDS = _standard_speeds()
+
+
+def tty_speed_bps(fd: int) -> int:
+    """Return the output speed of a terminal in bps, custom (BOTHER) speeds included."""
+    buf = array.array('I', [0] * _TERMIOS2_WORDS)
+    try:
+        fcntl.ioctl(fd, TCGETS2, buf, True)
+        if buf[_OSPEED_WORD] > 0:
+            return int(buf[_OSPEED_WORD])
+    except OSError:
+        pass
+    return _SPEEDS.get(termios.tcgetattr(fd)[5], 0)
+
+
+def set_tty_speed(fd: int, baud_bps: int) -> None:
+    """Set a terminal's speeds to baud_bps through termios2 (any rate); best effort."""
+    buf = array.array('I', [0] * _TERMIOS2_WORDS)
+    try:
+        fcntl.ioctl(fd, TCGETS2, buf, True)
+        buf[_CFLAG_WORD] = (buf[_CFLAG_WORD] & ~termios.CBAUD) | BOTHER
+        buf[_ISPEED_WORD] = baud_bps
+        buf[_OSPEED_WORD] = baud_bps
+        fcntl.ioctl(fd, TCSETS2, buf)
+    except OSError:
+        pass  # the client sets its own speed anyway
+
+
+class StartupError(Exception):
+    """A start-up failure reported as one line and a non-zero exit."""
+
+
+def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -> None:
+    """
+    Set every servo's Return Delay Time (when given) and Baud Rate through WRITE packets.
+
+    SimBus exposes no register writes, so this goes through the protocol at each servo's
+    current baud, as a user would with a real servo. Servos still booting ignore packets, so it
+    retries until the registers read back right.
+    """
+    baud_raw = {bps: raw for raw, bps in control_table.BAUD_RATES.items()}[baud_bps]
+    wanted: list[tuple[str, int]] = []
+    if return_delay_raw is not None:
+        wanted.append(('return_delay_time', return_delay_raw))
+    wanted.append(('baud_rate', baud_raw))  # last: it changes the baud the servo listens at
+    deadline_s = time.monotonic() + SETUP_TIMEOUT_S
+    for servo_id in bus.servo_ids():
+        for name, value in wanted:
+            item = control_table.lookup(name)
+            while bus.read_register(servo_id, name) != value:
+                if time.monotonic() > deadline_s:
+                    raise StartupError(f'servo {servo_id} did not accept {name}={value}')
+                current_bps = control_table.BAUD_RATES[bus.read_register(servo_id, 'baud_rate')]
+                params = (item.address.to_bytes(2, 'little')
+                          + value.to_bytes(item.size, 'little'))
+                packet = protocol.encode_instruction(servo_id, protocol.Instruction.WRITE, params)
+                bus.feed(packet, current_bps)
+                if bus.read_register(servo_id, name) != value:
+                    time.sleep(0.01)
+
+
+class VirtualBusServer:
+    """Serve a SimBus on a pseudo-terminal."""
+
+    def __init__(self, bus: SimBus, timing: str = 'instant', latency_s: float = 0.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.bus = bus
+        self.timing = timing
+        self.stats = LatenessStats()
+        self.dropped_bytes = 0  # replies lost because the client left the pty's buffer full
+        self._clock = clock
+        self._scheduler = WireScheduler(latency_s)
+        self._pending: list[tuple[float, int, bytes]] = []  # heap of (due_s, seq, data)
+        self._seq = 0
+        self._master = -1
+        self._slave = -1
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_w, False)
+        self._stopping = False
+        self.device = ''
+
+    def open_pty(self, initial_baud_bps: int) -> str:
+        """Create the pty in raw mode; return the slave's device path."""
+        try:
+            self._master, self._slave = os.openpty()
+        except OSError as exc:
+            raise StartupError(f'cannot open a pseudo-terminal: {exc}') from exc
+        # Raw: no echo of what we write back to ourselves, no CR/LF or flow-control mangling.
+        tty.setraw(self._slave)
+        set_tty_speed(self._slave, initial_baud_bps)
+        os.set_blocking(self._master, False)
+        self.device = os.ttyname(self._slave)
+        return self.device
+
+    def stop(self) -> None:
+        """Ask serve() to return (safe from a signal handler or another thread)."""
+        self._stopping = True
+        try:
+            os.write(self._wake_w, b'\0')
+        except OSError:
+            pass
+
+    def serve(self) -> None:
+        """Move bytes between the pty and the bus until stop()."""
+        while not self._stopping:
+            timeout_s = 0.5
+            if self._pending:
+                timeout_s = min(timeout_s, max(0.0, self._pending[0][0] - self._clock() - SPIN_S))
+            try:
+                readable, _, _ = select.select([self._master, self._wake_r], [], [], timeout_s)
+            except InterruptedError:  # pragma: no cover - PEP 475 retries; kept for safety
+                continue
+            if self._wake_r in readable:
+                os.read(self._wake_r, 64)
+            if self._master in readable:
+                self._receive()
+            self._deliver_due()
+
+    def close(self) -> None:
+        """Close every descriptor."""
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = self._wake_r = self._wake_w = -1
+
+    def _receive(self) -> None:
+        try:
+            data = os.read(self._master, READ_CHUNK)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:  # no slave open; cannot happen while we hold one
+                time.sleep(0.01)
+                return
+            raise
+        if not data:
+            return
+        now_s = self._clock()
+        baud_bps = tty_speed_bps(self._slave)
+        replies = self.bus.feed(data, baud_bps)
+        if self.timing == 'instant':
+            for reply in replies:
+                self._push(now_s, reply.data)
+            return
+        end_s = self._scheduler.instruction_end_s(now_s, len(data), baud_bps)
+        for due_s, chunk in self._scheduler.schedule(end_s, replies, baud_bps):
+            self._push(due_s, chunk)
+
+    def _push(self, due_s: float, data: bytes) -> None:
+        heapq.heappush(self._pending, (due_s, self._seq, data))
+        self._seq += 1
+
+    def _deliver_due(self) -> None:
+        while self._pending and self._pending[0][0] <= self._clock() + SPIN_S:
+            due_s, _, data = heapq.heappop(self._pending)
+            hybrid_wait(due_s, self._clock)
+            self.stats.record(self._clock() - due_s)
+            try:
+                written = os.write(self._master, data)
+            except BlockingIOError:
+                written = 0
+            # The client is not reading and the pty buffer is full: like an adapter's overflowing
+            # receive buffer, the rest is lost.
+            self.dropped_bytes += len(data) - written
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """Argument errors as one line on stderr and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f'{self.prog}: error: {message}\n')
+
+
+def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    bauds = sorted(control_table.BAUD_RATES.values())
+    parser = _OneLineParser(prog='virtual_bus',
+                            description='Simulated Dynamixel servos on a pseudo-terminal.')
+    parser.add_argument('--ids', type=int, nargs='+', required=True, help='servo ids (0..252)')
+    parser.add_argument('--baud', type=int, default=57600,
+                        help=f'servo baud rate, one of {bauds} (default 57600)')
+    parser.add_argument('--link', default=None, help='make this symlink to the device')
+    parser.add_argument('--timing', choices=('instant', 'wire'), default='instant')
+    parser.add_argument('--latency-ms', type=float, default=0.0,
+                        help='USB adapter latency timer (wire timing only)')
+    parser.add_argument('--return-delay-time', type=int, default=None, metavar='RAW',
+                        help='Return Delay Time register (2 us units, 0..254)')
+    parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
+    args = parser.parse_args(argv)
+    bad_ids = [i for i in args.ids if not 0 <= i <= control.MAX_SERVO_ID]
+    if bad_ids:
+        parser.error(f'--ids: {bad_ids[0]} is not in 0..{control.MAX_SERVO_ID}')
+    if len(set(args.ids)) != len(args.ids):
+        parser.error('--ids: duplicate id')
+    if args.baud not in bauds:
+        parser.error(f'--baud {args.baud}: the servo supports {bauds}')
+    if not args.latency_ms >= 0.0:
+        parser.error('--latency-ms must be >= 0')
+    if args.latency_ms > 0.0 and args.timing != 'wire':
+        parser.error('--latency-ms needs --timing wire')
+    if args.return_delay_time is not None and not 0 <= args.return_delay_time <= 254:
+        parser.error('--return-delay-time must be 0..254')
+    return args
+
+
+def _make_link(link: str, device: str) -> None:
+    """Create link -> device; replace only a stale symlink to a vanished pty."""
+    if os.path.islink(link):
+        target = os.readlink(link)
+        if target.startswith(PTS_PREFIX) and not os.path.exists(target):
+            os.unlink(link)
+        else:
+            raise StartupError(f'link path {link} is taken (symlink to {target}); remove it')
+    elif os.path.lexists(link):
+        raise StartupError(f'link path {link} is taken (not a symlink); remove it')
+    try:
+        os.symlink(device, link)
+    except OSError as exc:
+        raise StartupError(f'cannot create link {link}: {exc.strerror}') from exc
+
+
+def _remove_link(link: str, device: str) -> None:
+    """Remove link if it is still ours."""
+    try:
+        if os.path.islink(link) and os.readlink(link) == device:
+            os.unlink(link)
+    except OSError:
+        pass
+
+
+class _Console:
+    """Answer control lines from a text stream, one output line each."""
+
+    def __init__(self, server: VirtualBusServer, out: TextIO) -> None:
+        self._server = server
+        self._out = out
+        self._lock = threading.Lock()
+
+    def say(self, line: str) -> None:
+        with self._lock:
+            try:
+                self._out.write(line + '\n')
+                self._out.flush()
+            except (OSError, ValueError):
+                pass  # nobody listens any more; keep serving the bus
+
+    def run(self, stream: TextIO) -> None:
+        try:
+            for line in stream:
+                answer = control.handle_line(line, self._server.bus, self._server.stats.line)
+                if answer is not None:
+                    self.say(answer)
+        except (OSError, ValueError):
+            pass  # stdin closed or unreadable: keep serving the bus
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the virtual bus; return the exit status."""
+    args = _parse_args(argv)
+    try:
+        bus = SimBus(args.ids, seed=args.seed)
+        configure_servos(bus, args.baud, args.return_delay_time)
+    except (StartupError, ValueError) as exc:  # ValueError: SimBus refused the ids
+        print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
+        return 1
+    server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0)
+
+    def on_signal(signum: int, frame: object) -> None:
+        server.stop()
+
+    # Installed before the link exists, so a signal at any later point still removes it.
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    device = ''
+    linked = False
+    try:
+        try:
+            device = server.open_pty(args.baud)
+            if args.link:
+                _make_link(args.link, device)
+                linked = True
+        except StartupError as exc:
+            print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
+            return 1
+        console = _Console(server, sys.stdout)
+        console.say(device)
+        if sys.stdin is not None:
+            if isinstance(sys.stdin, io.TextIOWrapper):
+                sys.stdin.reconfigure(errors='replace')  # a stray binary byte is a bad line
+            threading.Thread(target=console.run, args=(sys.stdin,), name='control',
+                             daemon=True).start()
+        server.serve()
+    finally:
+        if linked:
+            _remove_link(args.link, device)
+        server.close()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
