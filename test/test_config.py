@@ -1,0 +1,107 @@
+"""Configuration validation: every invalid case of SPEC section 2 names its key."""
+
+from typing import Any, Dict
+
+from dxl_servo_driver.config import ConfigError, PARAMS, validate
+import pytest
+
+
+def base() -> Dict[str, Any]:
+    return {
+        'port': 'sim', 'baud_rate': 1000000, 'joints': ['arm', 'wheel'],
+        'arm.id': 1, 'arm.operating_mode': 'position',
+        'arm.registers.profile_velocity': 100, 'arm.registers.return_delay_time': 0,
+        'wheel.id': 2, 'wheel.operating_mode': 'velocity',
+    }
+
+
+def test_a_valid_file_gives_its_joints_in_order() -> None:
+    config = validate(base())
+    assert [j.name for j in config.joints] == ['arm', 'wheel']
+    assert config.joint('arm').servo_id == 1
+    assert config.joint('arm').register_dict() == {'profile_velocity': 100,
+                                                   'return_delay_time': 0}
+    assert config.joint('wheel').operating_mode == 'velocity'
+    assert config.baud_rate == 1000000
+    assert config.loop_rate == 100.0       # default
+
+
+def test_integer_loop_rate_is_accepted_as_a_number() -> None:
+    params = base()
+    params['loop_rate'] = 250
+    assert validate(params).loop_rate == 250.0
+
+
+def test_operating_mode_defaults_to_position() -> None:
+    params = base()
+    del params['arm.operating_mode']
+    assert validate(params).joint('arm').operating_mode == 'position'
+
+
+@pytest.mark.parametrize('change, key, words', [
+    # duplicate id
+    ({'wheel.id': 1}, 'wheel.id', 'already used'),
+    # duplicate name
+    ({'joints': ['arm', 'arm']}, 'joints', 'twice'),
+    # id out of range
+    ({'arm.id': 253}, 'arm.id', '0..252'),
+    ({'arm.id': -1}, 'arm.id', '0..252'),
+    # unknown mode
+    ({'arm.operating_mode': 'torque'}, 'arm.operating_mode', 'unknown operating mode'),
+    # unknown register
+    ({'arm.registers.goal_speed': 3}, 'arm.registers.goal_speed', 'unknown register'),
+    # read-only register
+    ({'arm.registers.present_position': 3}, 'arm.registers.present_position', 'read-only'),
+    # register the driver owns
+    ({'arm.registers.torque_enable': 1}, 'arm.registers.torque_enable', 'managed by the driver'),
+    # value out of the register's range
+    ({'arm.registers.return_delay_time': 255}, 'arm.registers.return_delay_time', 'range'),
+    ({'arm.registers.position_p_gain': 40000}, 'arm.registers.position_p_gain', 'range'),
+    # a value beyond its limit register in the same file
+    ({'arm.registers.velocity_limit': 50}, 'arm.registers.profile_velocity', 'exceeds'),
+    # baud not in the table
+    ({'baud_rate': 250000}, 'baud_rate', 'not one of'),
+    # missing id
+    ({'arm.id': None}, 'arm.id', 'no id'),
+    # wrong types
+    ({'arm.id': 'one'}, 'arm.id', 'integer'),
+    ({'loop_rate': 'fast'}, 'loop_rate', 'number'),
+    ({'torque_on_start': 'yes'}, 'torque_on_start', 'true or false'),
+    ({'arm.registers.profile_velocity': 1.5}, 'arm.registers.profile_velocity', 'integer'),
+    # ranges of the node's own parameters
+    ({'loop_rate': 0.0}, 'loop_rate', 'minimum'),
+    ({'command_timeout': -1.0}, 'command_timeout', 'minimum'),
+    ({'missing_servo': 'ignore'}, 'missing_servo', 'not one of'),
+    # empty or unknown joints
+    ({'joints': []}, 'joints', 'no joints'),
+    ({'joints': ['arm', '']}, 'joints', 'invalid joint name'),
+    ({'elbow.id': 3}, 'elbow.id', 'unknown parameter'),
+    ({'arm.gain': 3}, 'arm.gain', 'unknown joint parameter'),
+    ({'arm.torque_constant': 0.0}, 'arm.torque_constant', 'positive'),
+    # position limits crossed, a homing offset position mode ignores
+    ({'arm.registers.min_position_limit': 3000, 'arm.registers.max_position_limit': 1000},
+     'arm.registers.min_position_limit', 'above'),
+    ({'arm.registers.homing_offset': 2000}, 'arm.registers.homing_offset', '1024'),
+])
+def test_invalid_configuration_names_the_key(change: Dict[str, Any], key: str,
+                                             words: str) -> None:
+    params = base()
+    for name, value in change.items():
+        if value is None:
+            params.pop(name)
+        else:
+            params[name] = value
+    with pytest.raises(ConfigError) as info:
+        validate(params)
+    assert info.value.key == key
+    assert key in str(info.value)
+    assert words in str(info.value)
+
+
+def test_every_parameter_has_a_description_and_a_valid_default() -> None:
+    for spec in PARAMS:
+        assert len(spec.description) > 20, spec.name
+        if spec.choices:
+            assert spec.default in spec.choices, spec.name
+        if spec.minimum is not None:
+            assert spec.minimum <= spec.default <= spec.maximum, spec.name
