@@ -299,9 +299,9 @@ class Bus:
             self.tx_packets += 1
             try:
                 return func(self._sdk_port, *args)
-            except PortError:
+            except (PortError, OSError) as exc:
                 self._sdk_port.is_using = False
-                raise
+                raise _port_lost(exc) from None
 
     def ping(self, servo_id: int) -> int:
         """Return the model number of the servo; raise when it does not answer."""
@@ -378,20 +378,23 @@ class Bus:
         expected = reply_size * len(id_tuple)
         with self.lock:
             port = self.port
-            port.reset_input_buffer()
-            port.write(packet)
-            self.tx_packets += 1
-            deadline = time.monotonic() + self.reply_timeout_s(expected, len(id_tuple),
-                                                               len(packet))
-            buffer = port.read(expected, deadline - time.monotonic())
-            results = self._parse_sync(buffer, id_tuple, length)
-            while len(results) < len(id_tuple) and time.monotonic() < deadline:
-                # Byte stuffing or a bad packet made the replies longer: read what is left.
-                more = port.read(reply_size, deadline - time.monotonic())
-                if not more:
-                    break
-                buffer += more
+            try:
+                port.reset_input_buffer()
+                port.write(packet)
+                self.tx_packets += 1
+                deadline = time.monotonic() + self.reply_timeout_s(expected, len(id_tuple),
+                                                                   len(packet))
+                buffer = port.read(expected, deadline - time.monotonic())
                 results = self._parse_sync(buffer, id_tuple, length)
+                while len(results) < len(id_tuple) and time.monotonic() < deadline:
+                    # Byte stuffing or a bad packet made the replies longer: read the rest.
+                    more = port.read(reply_size, deadline - time.monotonic())
+                    if not more:
+                        break
+                    buffer += more
+                    results = self._parse_sync(buffer, id_tuple, length)
+            except (PortError, OSError) as exc:
+                raise _port_lost(exc) from None
         for servo_id in id_tuple:
             if servo_id not in results:
                 self.timeouts += 1
@@ -455,7 +458,10 @@ class Bus:
             params += value
         packet = encode_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
         with self.lock:
-            self.port.write(packet)
+            try:
+                self.port.write(packet)
+            except (PortError, OSError) as exc:
+                raise _port_lost(exc) from None
             self.tx_packets += 1
         return len(packet)
 
@@ -464,8 +470,18 @@ class Bus:
         packet = encode_instruction(servo_id, Instruction.WRITE,
                                     struct.pack('<H', address) + bytes(data))
         with self.lock:
-            self.port.write(packet)
+            try:
+                self.port.write(packet)
+            except (PortError, OSError) as exc:
+                raise _port_lost(exc) from None
             self.tx_packets += 1
+
+
+def _port_lost(exc: BaseException) -> PortError:
+    # pyserial's SerialException and the simulator's disconnect are both OSError subclasses.
+    if isinstance(exc, PortError):
+        return exc
+    return PortError(f'port lost: {exc}; was the adapter unplugged?')
 
 
 def decode_values(item_list: List[ct.Item], data: bytes) -> List[int]:

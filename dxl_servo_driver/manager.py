@@ -379,15 +379,15 @@ class Manager:
         assert self.bus is not None
         self._apply_configuration(servo)
         goal = servo.goal_raw.get('goal_position')
-        if hold_last_goal and servo.mode in model.POSITION_MODES and goal is not None:
+        self._hold_and_enable(servo)
+        if (hold_last_goal and servo.torque_wanted and servo.mode in model.POSITION_MODES
+                and goal is not None):
+            # Torque on holds where the horn is now; then back to the goal it was given (the
+            # servo's profile makes that a smooth move if the horn sagged while unpowered).
             if servo.mode == 'position':
                 goal = min(max(goal, servo.limits['min_position_limit']),
                            servo.limits['max_position_limit'])
             self._write_goal(servo, 'goal_position', goal)
-            self.bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'],
-                                int(servo.torque_wanted))
-        else:
-            self._hold_and_enable(servo)
 
     def write_pending(self) -> int:
         """Write the goals queued since the last cycle: one sync write per register."""

@@ -34,8 +34,7 @@ the latched hardware errors.  Choices where the manual is silent (all documented
 import struct
 from typing import Protocol
 
-from dxl_servo_driver.control_table import (
-    BAUD_RATES, BY_NAME, FIRMWARE_VERSION, MODEL_NUMBER)
+from dxl_servo_driver.control_table import BAUD_RATES, BY_NAME
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, Instruction, ParseEvent)
 from dxl_servo_driver.sim.memory import Memory, TableError
@@ -44,7 +43,6 @@ CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
 _POSITION_MODES = frozenset({3, 4, 5})
 _ADDR_LEN = struct.Struct('<HH')
 _U16 = struct.Struct('<H')
-_PING_PARAMS = struct.pack('<HB', MODEL_NUMBER, FIRMWARE_VERSION)
 # Note 1 of Operating Mode: a mode change resets these gains to their initial values.
 _MODE_RESET_GAINS = ('velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
                      'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain')
@@ -265,7 +263,10 @@ class SimServo:
 
     # ---- instructions --------------------------------------------------------------------------
     def _ping(self, my_id: int, broadcast: bool, params: bytes, now_s: float) -> bytes | None:
-        return self._status(my_id, 0, _PING_PARAMS, _KIND_PING)
+        # The model number and firmware come from the table, as a real servo reports them.
+        memory = self.memory
+        params = struct.pack('<HB', memory.get('model_number'), memory.get('firmware_version'))
+        return self._status(my_id, 0, params, _KIND_PING)
 
     def _read_reply(self, my_id: int, address: int, length: int) -> bytes | None:
         try:

@@ -1,0 +1,380 @@
+"""
+The manager over the simulated bus (no ROS): configuration, the cycle, commands, recovery.
+
+What went over the wire is checked by tapping the simulator's in-process port: every byte the
+driver writes is parsed back into Protocol 2.0 packets.
+"""
+
+import math
+import time
+from typing import Any, Dict, List, Tuple
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+from dxl_servo_driver.bus import PortError
+from dxl_servo_driver.config import DriverConfig, validate
+from dxl_servo_driver.manager import Manager, ManagerError
+from dxl_servo_driver.protocol import Instruction, Packet, StreamParser
+from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.port import SimPortHandler
+from dxl_servo_driver.sim.virtual_bus import configure_servos
+import pytest
+
+BAUD = 1_000_000
+
+
+class TapPort:
+    """The simulator's port, with a record of every packet the driver sent."""
+
+    def __init__(self, port: SimPortHandler) -> None:
+        self.port = port
+        self.packets: List[Packet] = []
+        self._parser = StreamParser()
+
+    @property
+    def baudrate(self) -> int:
+        return self.port.baudrate
+
+    def write(self, data: bytes) -> int:
+        self.packets += [event.packet for event in self._parser.feed(bytes(data), 0.0)]
+        return self.port.write(data)
+
+    def read(self, size: int, timeout_s: float) -> bytes:
+        return self.port.read(size, timeout_s)
+
+    def reset_input_buffer(self) -> None:
+        self.port.reset_input_buffer()
+
+    def close(self) -> None:
+        self.port.close()
+
+    def writes(self, servo_id: int) -> List[Tuple[int, bytes]]:
+        """Return (address, data) of every WRITE sent to servo_id."""
+        return [(p.params[0] | (p.params[1] << 8), p.params[2:]) for p in self.packets
+                if p.instruction == Instruction.WRITE and p.servo_id == servo_id]
+
+    def written_addresses(self, servo_id: int) -> List[int]:
+        return [address for address, _ in self.writes(servo_id)]
+
+
+class Rig:
+    """A SimBus, its tapped port, and managers built on them."""
+
+    def __init__(self, ids: Tuple[int, ...] = (1, 2, 3)) -> None:
+        self.sim = SimBus(ids, boot_time_s=0.02)
+        configure_servos(self.sim, BAUD, None)
+        self.tap = TapPort(SimPortHandler(self.sim, 'sim', BAUD))
+        self.logs: List[str] = []
+
+    def open(self, _config: DriverConfig) -> Tuple[TapPort, SimBus]:
+        # Like opening the device again: a new port on the same servos, same tap.
+        self.tap.port = SimPortHandler(self.sim, 'sim', BAUD)
+        return self.tap, self.sim
+
+    def manager(self, config: DriverConfig, **kwargs: Any) -> Manager:
+        return Manager(config, info=self.logs.append, warn=self.logs.append,
+                       error=self.logs.append, port_factory=self.open, **kwargs)
+
+    def reg(self, servo_id: int, name: str) -> int:
+        return self.sim.read_register(servo_id, name)
+
+    def wait_booted(self, servo_id: int) -> None:
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            if self.sim.servo(servo_id).responsive(time.monotonic()):
+                return
+            time.sleep(0.005)
+        raise AssertionError('servo did not boot')
+
+
+def params(**extra: Any) -> Dict[str, Any]:
+    base: Dict[str, Any] = {
+        'port': 'sim', 'baud_rate': BAUD, 'latency_timer': 1.0,
+        'joints': ['arm', 'wheel', 'grip'],
+        'arm.id': 1, 'arm.operating_mode': 'position',
+        'arm.registers.profile_velocity': 200, 'arm.registers.position_p_gain': 900,
+        'arm.registers.return_delay_time': 0,
+        'wheel.id': 2, 'wheel.operating_mode': 'velocity',
+        'wheel.registers.return_delay_time': 0, 'wheel.registers.velocity_limit': 300,
+        'grip.id': 3, 'grip.operating_mode': 'current',
+        'grip.registers.return_delay_time': 0, 'grip.registers.current_limit': 500,
+    }
+    base.update(extra)
+    return base
+
+
+@pytest.fixture
+def rig() -> Rig:
+    return Rig()
+
+
+@pytest.fixture
+def active(rig: Rig) -> Tuple[Rig, Manager]:
+    manager = rig.manager(validate(params()))
+    manager.configure()
+    manager.activate()
+    return rig, manager
+
+
+def test_configure_applies_and_verifies_the_configuration(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    assert rig.reg(1, 'profile_velocity') == 200
+    assert rig.reg(1, 'position_p_gain') == 900
+    assert rig.reg(2, 'operating_mode') == 1
+    assert rig.reg(3, 'operating_mode') == 0
+    assert rig.reg(3, 'current_limit') == 500
+    assert all(rig.reg(i, 'return_delay_time') == 0 for i in (1, 2, 3))
+    assert all(rig.reg(i, 'torque_enable') == 1 for i in (1, 2, 3))
+    assert [s.model_number for s in manager.order] == [1030] * 3
+    assert manager.bus.return_delay_s == 0.0
+    # Activation made each servo hold: goal = present, zero velocity and zero current.
+    assert rig.reg(1, 'goal_position') == rig.reg(1, 'present_position')
+    assert rig.reg(2, 'goal_velocity') == 0
+    assert rig.reg(3, 'goal_current') == 0
+    assert any('bus limit' in line for line in rig.logs)
+
+
+def test_eeprom_is_written_only_where_it_differs(rig: Rig) -> None:
+    config = validate(params())
+    first = rig.manager(config)
+    first.configure()
+    eeprom = {item.address for item in ct.ITEMS if item.area == 'eeprom'}
+    written = {a for a in rig.tap.written_addresses(2) if a in eeprom}
+    # wheel: operating_mode (11), return_delay_time (9), velocity_limit (44) differ from defaults.
+    assert written == {11, 9, 44}
+    first.close()
+    rig.tap.packets.clear()
+    second = rig.manager(config)
+    second.configure()
+    for servo_id in (1, 2, 3):
+        again = [a for a in rig.tap.written_addresses(servo_id) if a in eeprom]
+        assert again == [], f'id {servo_id}: EEPROM rewritten although equal: {again}'
+        # Each EEPROM value was read (compared), not blindly written.
+        reads = [p for p in rig.tap.packets
+                 if p.instruction == Instruction.READ and p.servo_id == servo_id]
+        assert len(reads) >= 2
+
+
+def test_eeprom_write_turns_torque_off_first(rig: Rig) -> None:
+    manager = rig.manager(validate(params()))
+    manager.configure()
+    manager.activate()
+    manager.close()
+    assert rig.reg(2, 'torque_enable') == 1          # left on by a previous run
+    rig.tap.packets.clear()
+    changed = params(**{'wheel.registers.velocity_limit': 250})
+    again = rig.manager(validate(changed))
+    again.configure()
+    assert rig.reg(2, 'velocity_limit') == 250
+    writes = rig.tap.writes(2)
+    torque_off = writes.index((64, b'\x00'))
+    limit = writes.index((44, (250).to_bytes(4, 'little')))
+    assert torque_off < limit
+
+
+def test_one_sync_read_per_cycle_gives_the_simulator_state(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    rig.tap.packets.clear()
+    manager.read_states()
+    assert [p.instruction for p in rig.tap.packets] == [Instruction.SYNC_READ]
+    for servo in manager.order:
+        assert servo.fresh
+        state = dict(zip(model.STATE_BLOCK.names, servo.state))
+        for name in ('present_position', 'present_input_voltage', 'present_temperature',
+                     'torque_enable', 'hardware_error_status'):
+            assert state[name] == rig.reg(servo.servo_id, name), name
+
+
+def test_goals_go_out_in_one_sync_write_per_register(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    assert manager.command('position', ['arm'], [0.5]).success
+    assert manager.command('velocity', ['wheel'], [1.0]).success
+    assert manager.command('current', ['grip'], [0.2]).success
+    # The latest goal per joint wins.
+    assert manager.command('position', ['arm'], [0.25]).success
+    rig.tap.packets.clear()
+    assert manager.write_pending() == 3
+    sync = [p for p in rig.tap.packets if p.instruction == Instruction.SYNC_WRITE]
+    assert len(sync) == 3 and len(rig.tap.packets) == 3
+    assert rig.reg(1, 'goal_position') == model.position_from_rad(0.25)
+    assert rig.reg(2, 'goal_velocity') == model.velocity_from_rad_s(1.0)
+    assert rig.reg(3, 'goal_current') == model.current_from_a(0.2)
+    assert manager.write_pending() == 0     # nothing pending: nothing sent
+
+
+@pytest.mark.parametrize('kind, names, values, reason', [
+    ('position', ['elbow'], [0.1], 'unknown joint'),
+    ('position', ['arm', 'wheel'], [0.1], 'same length'),
+    ('position', [], [], 'empty'),
+    ('position', ['arm'], [math.nan], 'finite'),
+    ('position', ['arm'], [math.inf], 'finite'),
+    ('velocity', ['arm'], [0.1], 'position mode'),
+    ('position', ['wheel'], [0.1], 'velocity mode'),
+    ('pwm', ['grip'], [0.1], 'current mode'),
+    ('position', ['arm', 'arm'], [0.1, 0.2], 'twice'),
+])
+def test_refused_commands_write_nothing(active: Tuple[Rig, Manager], kind: str,
+                                        names: List[str], values: List[float],
+                                        reason: str) -> None:
+    rig, manager = active
+    before = {i: rig.sim.registers(i) for i in (1, 2, 3)}
+    rig.tap.packets.clear()
+    result = manager.command_now(kind, names, values)
+    assert not result.success
+    assert reason in result.message
+    assert rig.tap.packets == []
+    # A mixed command with one bad entry is refused whole.
+    if names and names[0] == 'arm' and kind == 'position' and len(names) == 1:
+        assert not manager.command_now('position', ['arm', 'elbow'], [0.1, 0.1]).success
+    after = {i: rig.sim.registers(i) for i in (1, 2, 3)}
+    for servo_id in (1, 2, 3):
+        for name in ('goal_position', 'goal_velocity', 'goal_current', 'goal_pwm'):
+            assert after[servo_id][name] == before[servo_id][name]
+
+
+def test_goals_beyond_the_limits_are_clamped_with_a_warning(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    assert manager.command_now('position', ['arm'], [10.0]).success
+    assert rig.reg(1, 'goal_position') == 4095
+    assert manager.command_now('velocity', ['wheel'], [100.0]).success
+    assert rig.reg(2, 'goal_velocity') == 300       # the configured velocity_limit
+    assert manager.command_now('current', ['grip'], [-50.0]).success
+    assert rig.reg(3, 'goal_current') == -500
+    assert sum('clamped' in line for line in rig.logs) == 3
+
+
+def test_mode_switch_restores_what_the_seed_says_it_resets(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    result = manager.set_operating_mode(['arm'], 'extended_position')
+    assert result.success, result.message
+    assert rig.reg(1, 'operating_mode') == 4
+    assert rig.reg(1, 'profile_velocity') == 200      # reset to 0 by the servo, re-applied
+    assert rig.reg(1, 'position_p_gain') == 900
+    assert rig.reg(1, 'torque_enable') == 1
+    assert rig.reg(1, 'goal_position') == rig.reg(1, 'present_position')
+    # Into current mode: the servo resets goal_current to the current limit; the driver must
+    # not enable torque with that.
+    result = manager.set_operating_mode(['wheel'], 'current')
+    assert result.success, result.message
+    assert rig.reg(2, 'goal_current') == 0
+    assert manager.command_now('current', ['wheel'], [0.1]).success
+    assert not manager.command_now('velocity', ['wheel'], [0.1]).success
+    assert not manager.set_operating_mode(['arm'], 'torque').success
+    assert not manager.set_operating_mode(['nobody'], 'position').success
+
+
+def test_torque_service_and_eeprom_refusal(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    refused = manager.write_register('arm', 'return_delay_time', 5)
+    assert not refused.success and 'torque' in refused.message
+    assert rig.reg(1, 'return_delay_time') == 0
+    assert manager.set_torque(['arm'], False).success
+    assert rig.reg(1, 'torque_enable') == 0
+    assert manager.write_register('arm', '9', 5).success     # by decimal address
+    assert rig.reg(1, 'return_delay_time') == 5
+    assert manager.set_torque([], True).success
+    assert all(rig.reg(i, 'torque_enable') == 1 for i in (1, 2, 3))
+    value, message = manager.read_register('arm', 'return_delay_time')
+    assert value == 5 and 'return_delay_time' in message
+    value, _ = manager.read_register('arm', '146')
+    assert value == rig.reg(1, 'present_temperature')
+    assert manager.read_register('arm', 'no_such_register')[0] is None
+    assert not manager.write_register('arm', 'present_position', 1).success
+    assert not manager.write_register('arm', 'profile_velocity', -1).success
+
+
+def test_reboot_clears_errors_and_restores_configuration(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    rig.sim.inject_error(1, 'overload')
+    assert rig.reg(1, 'hardware_error_status') & 0x20
+    assert rig.reg(1, 'torque_enable') == 0            # overload is a shutdown bit by default
+    result = manager.reboot(['arm'])
+    assert result.success, result.message
+    assert rig.reg(1, 'hardware_error_status') == 0
+    assert rig.reg(1, 'profile_velocity') == 200
+    assert rig.reg(1, 'position_p_gain') == 900
+    assert rig.reg(1, 'torque_enable') == 1
+    manager.read_states()
+    assert manager.servos['arm'].fresh
+
+
+def test_failed_reads_leave_the_joint_out_and_it_comes_back(
+        active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    rig.sim.set_drop(2, 1.0)
+    manager.read_states()
+    assert [s.fresh for s in manager.order] == [True, False, True]
+    assert manager.servos['wheel'].comm_errors == 1
+    rig.sim.set_drop(2, 0.0)
+    rig.sim.set_corrupt(3, 1.0)
+    manager.read_states()
+    assert [s.fresh for s in manager.order] == [True, True, False]
+    assert manager.bus.corrupt >= 1
+    rig.sim.set_corrupt(3, 0.0)
+    manager.read_states()
+    assert all(s.fresh for s in manager.order)
+
+
+def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
+        active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    assert manager.command_now('position', ['arm'], [0.3]).success
+    goal = rig.reg(1, 'goal_position')
+    rig.sim.powercycle(1)
+    assert rig.reg(1, 'torque_enable') == 0 and rig.reg(1, 'profile_velocity') == 0
+    rig.wait_booted(1)
+    manager.read_states()                 # sees the lost indirect map: restores
+    assert manager.servos['arm'].restarts == 1
+    assert rig.reg(1, 'profile_velocity') == 200
+    assert rig.reg(1, 'torque_enable') == 1
+    assert rig.reg(1, 'goal_position') == goal          # holds its last goal
+    manager.read_states()
+    assert manager.servos['arm'].fresh
+
+
+def test_command_timeout_zeroes_streamed_goals(rig: Rig) -> None:
+    now = [100.0]
+    manager = rig.manager(validate(params(command_timeout=0.5)), clock=lambda: now[0])
+    manager.configure()
+    manager.activate()
+    assert manager.command_now('velocity', ['wheel'], [1.0]).success
+    assert manager.command_now('position', ['arm'], [0.2]).success
+    now[0] += 0.4
+    manager.check_command_timeout()
+    manager.write_pending()
+    assert rig.reg(2, 'goal_velocity') != 0
+    now[0] += 0.2
+    manager.check_command_timeout()
+    manager.write_pending()
+    assert rig.reg(2, 'goal_velocity') == 0
+    assert rig.reg(1, 'goal_position') == model.position_from_rad(0.2)   # position is kept
+    assert any('goal set to zero' in line for line in rig.logs)
+
+
+def test_missing_servo_refuses_or_skips(rig: Rig) -> None:
+    rig.sim.unplug(3)
+    manager = rig.manager(validate(params(ping_retries=1)))
+    with pytest.raises(ManagerError, match='id 3'):
+        manager.configure()
+    skipping = rig.manager(validate(params(ping_retries=1, missing_servo='skip')))
+    skipping.configure()
+    skipping.activate()
+    assert [s.name for s in skipping.active_servos()] == ['arm', 'wheel']
+    skipping.read_states()
+    assert not skipping.servos['grip'].fresh
+    result = skipping.command_now('current', ['grip'], [0.1])
+    assert not result.success and 'not on the bus' in result.message
+
+
+def test_a_wrong_model_is_refused(rig: Rig) -> None:
+    rig.sim.servo(2).memory.set('model_number', 1020)
+    manager = rig.manager(validate(params()))
+    with pytest.raises(ManagerError, match='model 1020'):
+        manager.configure()
+
+
+def test_port_loss_is_a_port_error(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    rig.tap.port.unplug_port()
+    with pytest.raises(PortError):
+        manager.read_states()
