@@ -66,14 +66,14 @@ class Rig:
         self.tap = TapPort(SimPortHandler(self.sim, 'sim', BAUD))
         self.logs: List[str] = []
 
-    def open(self, _config: DriverConfig) -> Tuple[TapPort, SimBus]:
+    def open_port(self, _config: DriverConfig) -> Tuple[TapPort, SimBus]:
         # Like opening the device again: a new port on the same servos, same tap.
         self.tap.port = SimPortHandler(self.sim, 'sim', BAUD)
         return self.tap, self.sim
 
     def manager(self, config: DriverConfig, **kwargs: Any) -> Manager:
         return Manager(config, info=self.logs.append, warn=self.logs.append,
-                       error=self.logs.append, port_factory=self.open, **kwargs)
+                       error=self.logs.append, port_factory=self.open_port, **kwargs)
 
     def reg(self, servo_id: int, name: str) -> int:
         return self.sim.read_register(servo_id, name)
