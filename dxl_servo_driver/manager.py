@@ -33,6 +33,7 @@ IDX_MOVING_STATUS = _I['moving_status']
 IDX_HW_ERROR = _I['hardware_error_status']
 IDX_TORQUE = _I['torque_enable']
 WARN_INTERVAL_S = 2.0
+_NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.MOTION_FIELDS)
 
 
 class ManagerError(Exception):
@@ -50,6 +51,7 @@ class Servo:
     online: bool = False            # answered at configure (or since)
     state: Optional[Tuple[int, ...]] = None   # last good state block (raw)
     state_time: float = 0.0         # monotonic time of that read
+    health_time: float = 0.0        # time of the last whole-block read (0 = health unknown)
     fresh: bool = False             # state was read in the latest cycle
     comm_errors: int = 0
     consecutive_failures: int = 0
@@ -145,6 +147,13 @@ class Manager:
         self.cycles = 0
         self.read_failures = 0
         self.last_read_time = 0.0
+        # How often the whole state block (health part too) is read; the node sets it from
+        # state_rate and the 1 Hz diagnostics.
+        self.health_period_s = 0.1
+        self._last_full_s = -1e9
+        self._need_full = True
+        self._ids_cache: List[Servo] = []
+        self._id_list: List[int] = []
 
     # configure / activate ---------------------------------------------------------------
     def configure(self) -> None:
@@ -162,6 +171,7 @@ class Manager:
                     if servo.online:
                         self._apply_configuration(servo)
                 self._set_return_delay()
+                self._refresh_ids()
             except BusError as exc:
                 raise ManagerError(f'configuration failed: {exc}') from None
             budget = self.bus_budget()
@@ -184,6 +194,11 @@ class Manager:
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""
         return [servo for servo in self.order if servo.online]
+
+    def _refresh_ids(self) -> None:
+        # The hot path reads these instead of rebuilding lists every cycle.
+        self._ids_cache = self.active_servos()
+        self._id_list = [servo.servo_id for servo in self._ids_cache]
 
     def _find_servos(self) -> None:
         assert self.bus is not None
@@ -284,6 +299,7 @@ class Manager:
                 except BusError as exc:
                     raise ManagerError(f'activation failed: {exc}') from None
             self._pending.clear()
+            self._need_full = True
 
     def _hold_and_enable(self, servo: Servo) -> None:
         """Make the servo hold where it is (per mode), then set torque as wanted."""
@@ -328,27 +344,50 @@ class Manager:
             self.bus = None
 
     # the cycle ----------------------------------------------------------------------------
-    def read_states(self) -> float:
+    def read_states(self, full: Optional[bool] = None) -> float:
         """
-        Read every servo's state block with one sync read; return the read's monotonic time.
+        Read every servo's state with one sync read; return the read's monotonic time.
 
-        A servo that does not answer well keeps fresh False: it is left out of what is published.
+        The motion part of the block is read every cycle; the whole block (health too) when
+        `full`, or by default every health_period_s, when a servo raised its alert bit, or when
+        a servo has no health values yet. A servo that does not answer well keeps fresh False:
+        it is left out of what is published.
         """
         with self.lock:
             assert self.bus is not None
-            servos = self.active_servos()
+            servos = self._ids_cache
             stamp = self._clock()
-            results = self.bus.sync_read(BLOCK.read_address, BLOCK.size,
-                                         [servo.servo_id for servo in servos])
+            if full is None:
+                full = (stamp - self._last_full_s >= self.health_period_s
+                        or self._need_full)
+            length = BLOCK.size if full else BLOCK.motion_size
+            results = self.bus.sync_read(BLOCK.read_address, length, self._id_list)
+            self._need_full = False
+            if full:
+                self._last_full_s = stamp
+            alerts = self.bus.alerts
             for servo in servos:
                 data = results.get(servo.servo_id)
                 if isinstance(data, bytes):
-                    values = BLOCK.decode(data)
+                    if full:
+                        values = BLOCK.decode(data)
+                    else:
+                        values = BLOCK.decode_motion(data)
                     if BLOCK.restarted(values):
                         servo.fresh = False
                         self._recover_restart(servo)
                         continue
-                    servo.state = values
+                    if full:
+                        servo.state = values
+                        servo.health_time = stamp
+                    elif servo.state is not None:
+                        servo.state = values + servo.state[BLOCK.MOTION_FIELDS:]
+                    else:
+                        # Motion is good; the health part is not known yet (health_time 0).
+                        servo.state = values + _NO_HEALTH
+                        self._need_full = True
+                    if alerts.get(servo.servo_id) and not servo.state[IDX_HW_ERROR]:
+                        self._need_full = True   # a new hardware error: decode it next cycle
                     servo.state_time = stamp
                     servo.fresh = True
                     servo.consecutive_failures = 0
@@ -366,6 +405,7 @@ class Manager:
     def _recover_restart(self, servo: Servo) -> None:
         """Give a servo that restarted on its own (power cut, brown-out) its setup back."""
         servo.restarts += 1
+        self._need_full = True
         self.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
                   'restoring its configuration, mode and torque')
         try:

@@ -101,6 +101,7 @@ class DriverNode(LifecycleNode):
         self._rate = RateMeter()
         self._loop_period_s = 1.0 / self.config.loop_rate
         self._state_period_s = (1.0 / self.config.state_rate) if self.config.state_rate else 0.0
+        self._set_health_period()
         self._thresholds = {name: getattr(self.config, name) for name in RUNTIME_PARAMS[3:]}
         self._command_timeout = self.config.command_timeout
         self._last_state_s = 0.0
@@ -113,10 +114,12 @@ class DriverNode(LifecycleNode):
             self.create_subscription(JointCommand, f'~/commands/{kind}',
                                      self._command_callback(kind), 10)
             for kind in COMMAND_KINDS]
-        self._services = [
+        # Not `_services`: rclpy's Node keeps its own list under that name (parameter and
+        # lifecycle services); replacing it left those services unserved or destroyed.
+        self._driver_services = [
             self.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
             for kind in COMMAND_KINDS]
-        self._services += [
+        self._driver_services += [
             self.create_service(SetOperatingMode, '~/set_operating_mode', self._on_set_mode),
             self.create_service(SetTorque, '~/set_torque', self._on_set_torque),
             self.create_service(Reboot, '~/reboot', self._on_reboot),
@@ -161,6 +164,10 @@ class DriverNode(LifecycleNode):
                 self.declare_parameter(name, value, ParameterDescriptor(
                     description=text, type=kind, read_only=True), ignore_override=True)
 
+    def _set_health_period(self) -> None:
+        # servo_states and the 1 Hz diagnostics need the health part of the state block.
+        self.manager.health_period_s = min(1.0, self._state_period_s or 1.0)
+
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         changes: Dict[str, float] = {}
         for param in params:
@@ -180,6 +187,7 @@ class DriverNode(LifecycleNode):
                 self._loop_period_s = 1.0 / value
             elif name == 'state_rate':
                 self._state_period_s = (1.0 / value) if value else 0.0
+                self._set_health_period()
             elif name == 'command_timeout':
                 self._command_timeout = value
                 self.manager.config = _replace(self.manager.config, command_timeout=value)
@@ -328,10 +336,13 @@ class DriverNode(LifecycleNode):
                          'temperature'):
                 setattr(msg, attr, math.nan)
             return msg
-        msg.torque_enabled = bool(state[IDX_TORQUE])
         msg.position = model.position_to_rad(state[IDX_POSITION])
         msg.velocity = model.velocity_to_rad_s(state[IDX_VELOCITY])
         msg.current = model.current_to_a(state[IDX_CURRENT])
+        if not servo.health_time:
+            msg.pwm = msg.input_voltage = msg.temperature = math.nan
+            return msg
+        msg.torque_enabled = bool(state[IDX_TORQUE])
         msg.pwm = model.pwm_to_ratio(state[IDX_PWM])
         msg.input_voltage = model.voltage_to_v(state[IDX_VOLTAGE])
         msg.temperature = float(state[IDX_TEMPERATURE])
@@ -392,7 +403,7 @@ class DriverNode(LifecycleNode):
         values = {'id': servo.servo_id, 'model_number': servo.model_number,
                   'firmware_version': servo.firmware_version, 'operating_mode': servo.mode,
                   'comm_errors': servo.comm_errors, 'restarts': servo.restarts}
-        if state is not None:
+        if state is not None and servo.health_time:
             temperature = float(state[IDX_TEMPERATURE])
             voltage = model.voltage_to_v(state[IDX_VOLTAGE])
             errors = ct.decode_hardware_errors(state[IDX_HW_ERROR])

@@ -185,6 +185,30 @@ def test_one_sync_read_per_cycle_gives_the_simulator_state(active: Tuple[Rig, Ma
             assert state[name] == rig.reg(servo.servo_id, name), name
 
 
+def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
+        active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    manager.health_period_s = 3600.0
+    manager.read_states()             # the first read after activation is whole
+    rig.tap.packets.clear()
+    for _ in range(3):
+        manager.read_states()
+    lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
+    assert lengths == [model.STATE_BLOCK.motion_size] * 3
+    assert all(s.fresh for s in manager.order)
+    # A hardware error raises the alert bit in every status: the next cycle reads it all.
+    rig.sim.inject_error(2, 'overheat')
+    rig.tap.packets.clear()
+    manager.read_states()
+    manager.read_states()
+    lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
+    assert lengths == [model.STATE_BLOCK.motion_size, model.STATE_BLOCK.size]
+    state = dict(zip(model.STATE_BLOCK.names, manager.servos['wheel'].state))
+    assert state['hardware_error_status'] == rig.reg(2, 'hardware_error_status') == 0x04
+    manager.read_states(full=True)
+    assert rig.tap.packets[-1].params[2] == model.STATE_BLOCK.size
+
+
 def test_goals_go_out_in_one_sync_write_per_register(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     assert manager.command('position', ['arm'], [0.5]).success
