@@ -14,6 +14,7 @@ import errno
 import os
 import select
 import struct
+import termios
 import threading
 import time
 from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Union
@@ -108,6 +109,10 @@ class SerialPort:
         self._fd = self._serial.fileno()
         self._poll = select.poll()
         self._poll.register(self._fd, select.POLLIN | select.POLLERR | select.POLLHUP)
+        self._write_poll = select.poll()
+        self._write_poll.register(self._fd, select.POLLOUT | select.POLLERR | select.POLLHUP)
+        self._attrs = termios.tcgetattr(self._fd)
+        self._vmin = -1
 
     @property
     def baudrate(self) -> int:
@@ -124,35 +129,55 @@ class SerialPort:
         sent = 0
         try:
             while sent < len(view):
-                sent += os.write(self._fd, view[sent:])
+                try:
+                    sent += os.write(self._fd, view[sent:])
+                except BlockingIOError:
+                    # The port is non-blocking (pyserial opens it so): wait for room.
+                    self._write_poll.poll(100)
         except OSError as exc:
             raise PortError(f'{self.device}: write failed ({exc.strerror}); '
                             'was the adapter unplugged?') from None
         return sent
 
+    def _wake_after(self, size: int) -> None:
+        # In non-canonical mode with VTIME 0 the kernel's poll() reports the tty readable only
+        # once VMIN bytes are there: one wake-up per reply block instead of one per USB packet.
+        vmin = max(1, min(size, 255))
+        if vmin != self._vmin:
+            self._attrs[6][termios.VMIN] = vmin
+            self._attrs[6][termios.VTIME] = 0
+            try:
+                termios.tcsetattr(self._fd, termios.TCSANOW, self._attrs)
+            except termios.error:
+                return
+            self._vmin = vmin
+
     def read(self, size: int, timeout_s: float) -> bytes:
         """Block until size bytes arrived or timeout_s passed; return what arrived."""
         chunks = bytearray()
         deadline = time.monotonic() + timeout_s
-        while len(chunks) < size:
+        fd = self._fd
+        while True:
+            self._wake_after(size - len(chunks))
             remaining_ms = (deadline - time.monotonic()) * 1000.0
-            if remaining_ms <= 0.0:
-                break
-            events = self._poll.poll(max(remaining_ms, 0.05))
-            if not events:
-                continue
-            try:
-                data = os.read(self._fd, size - len(chunks))
-            except OSError as exc:
-                if exc.errno == errno.EAGAIN:
-                    continue
-                raise PortError(f'{self.device}: read failed ({exc.strerror}); '
-                                'was the adapter unplugged?') from None
-            if not data:
-                # poll() says readable but nothing comes: the device went away.
-                raise PortError(f'{self.device}: device disconnected')
-            chunks += data
-        return bytes(chunks)
+            events = self._poll.poll(max(remaining_ms, 0.0))
+            if events:
+                # Drain what the kernel holds (a tty read returns it in pieces) before
+                # polling again.
+                try:
+                    while len(chunks) < size:
+                        data = os.read(fd, size - len(chunks))
+                        if not data:
+                            # poll() said readable but nothing comes: the device went away.
+                            raise PortError(f'{self.device}: device disconnected')
+                        chunks += data
+                except BlockingIOError:
+                    pass
+                except OSError as exc:
+                    raise PortError(f'{self.device}: read failed ({exc.strerror}); '
+                                    'was the adapter unplugged?') from None
+            if len(chunks) >= size or remaining_ms <= 0.0:
+                return bytes(chunks)
 
     def reset_input_buffer(self) -> None:
         """Drop unread input."""

@@ -38,6 +38,7 @@ is silent or ambiguous (see also motor.py and velocity_profile.py):
 """
 
 import math
+import struct
 from typing import Optional, Protocol
 
 from dxl_servo_driver.sim import motor
@@ -83,6 +84,16 @@ class RegisterStore(Protocol):
     def set(self, name: str, value: int) -> None:  # noqa: A003 (register store protocol)
         """Store a register value, bypassing access and range checks."""
         ...
+
+
+# Moving (122), Moving Status (123), Present PWM (124), Present Current (126), Present Velocity
+# (128), Present Position (132), Velocity Trajectory (136), Position Trajectory (140), Present
+# Input Voltage (144), Present Temperature (146).
+_PRESENT_BLOCK = struct.Struct('<BBhhiiiiHB')
+_PRESENT_BLOCK_ADDRESS = 122
+_PRESENT_NAMES = ('moving', 'moving_status', 'present_pwm', 'present_current',
+                  'present_velocity', 'present_position', 'velocity_trajectory',
+                  'position_trajectory', 'present_input_voltage', 'present_temperature')
 
 
 def _clamp_int(value: float, low: int, high: int) -> int:
@@ -455,29 +466,24 @@ class ServoDynamics:
                  overloaded_span: bool) -> int:
         """Write the present registers; return the detected error bits."""
         get = regs.get
-        put = regs.set
         homing = get('homing_offset')
         offset = self._turn_offset_pulse + homing
         velocity_raw = _clamp_int(self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S,
                                   _INT32_MIN, _INT32_MAX)
-        put('present_position', self._present_position_raw(homing))
-        put('present_velocity', velocity_raw)
-        put('present_current', _clamp_int(self.current_a / motor.AMPERE_PER_CURRENT_UNIT,
-                                          -32768, 32767))
-        put('present_pwm', _clamp_int(self.duty * motor.PWM_FULL_RAW, -32768, 32767))
+        position_raw = self._present_position_raw(homing)
+        current_raw = _clamp_int(self.current_a / motor.AMPERE_PER_CURRENT_UNIT, -32768, 32767)
+        pwm_raw = _clamp_int(self.duty * motor.PWM_FULL_RAW, -32768, 32767)
         voltage_raw = _clamp_int(self.input_voltage_v / motor.VOLT_PER_VOLTAGE_UNIT, 0, 65535)
-        put('present_input_voltage', voltage_raw)
         temperature_raw = _clamp_int(self.temperature_c, 0, 255)
-        put('present_temperature', temperature_raw)
 
         position_mode = mode in POSITION_MODES
         profile_on = position_mode and torque_on and self._profile is not None
         status = 0
+        position_trajectory = get('position_trajectory')
         if position_mode:
-            put('velocity_trajectory', _clamp_int(self._traj_vel_pulse_ms * 64.0,
-                                                  _INT32_MIN, _INT32_MAX))
-            put('position_trajectory', _clamp_int(self._traj_pulse + offset,
-                                                  _INT32_MIN, _INT32_MAX))
+            velocity_trajectory = _clamp_int(self._traj_vel_pulse_ms * 64.0,
+                                             _INT32_MIN, _INT32_MAX)
+            position_trajectory = _clamp_int(self._traj_pulse + offset, _INT32_MIN, _INT32_MAX)
             if torque_on:
                 status = self._profile_kind
                 if profile_on:
@@ -488,15 +494,23 @@ class ServoDynamics:
                         abs(self._traj_pulse - self.horn_position_pulse) > FOLLOWING_ERROR_PULSE:
                     status |= MOVING_STATUS_FOLLOWING_ERROR
         elif mode == MODE_VELOCITY:
-            put('velocity_trajectory', _clamp_int(self._vel_traj_raw if torque_on else 0.0,
-                                                  _INT32_MIN, _INT32_MAX))
+            velocity_trajectory = _clamp_int(self._vel_traj_raw if torque_on else 0.0,
+                                             _INT32_MIN, _INT32_MAX)
             if torque_on and get('profile_acceleration') > 0:
                 status = PROFILE_TRAPEZOIDAL
         else:
-            put('velocity_trajectory', 0)
-        put('moving_status', status)
-        moving = profile_on or abs(velocity_raw) > get('moving_threshold')
-        put('moving', 1 if moving else 0)
+            velocity_trajectory = 0
+        moving = 1 if profile_on or abs(velocity_raw) > get('moving_threshold') else 0
+        values = (moving, status, pwm_raw, current_raw, velocity_raw, position_raw,
+                  velocity_trajectory, position_trajectory, voltage_raw, temperature_raw)
+        raw = getattr(regs, 'raw', None)
+        if isinstance(raw, bytearray):
+            # Moving (122) .. Present Temperature (146) are one contiguous run of the table:
+            # one pack instead of ten register writes (this runs for every servo, every 1 ms).
+            _PRESENT_BLOCK.pack_into(raw, _PRESENT_BLOCK_ADDRESS, *values)
+        else:
+            for name, value in zip(_PRESENT_NAMES, values):
+                regs.set(name, value)
 
         errors = 0
         if voltage_raw < get('min_voltage_limit') or voltage_raw > get('max_voltage_limit'):

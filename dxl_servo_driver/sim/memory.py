@@ -45,6 +45,8 @@ _INDIRECT_DATA_LOW = min(_INDIRECT_DATA_TO_ADDRESS)
 _STRUCTS: dict[str, struct.Struct] = {
     item.name: struct.Struct(_FORMATS[(item.size, item.signed)]) for item in ITEMS}
 _U16 = struct.Struct('<H')
+# name -> (unpack_from, address): get() runs tens of times per servo per millisecond.
+_GETTERS = {item.name: (_STRUCTS[item.name].unpack_from, item.address) for item in ITEMS}
 
 
 class Memory:
@@ -59,8 +61,8 @@ class Memory:
     # ---- raw access (register store protocol) -------------------------------------------------
     def get(self, name: str) -> int:
         """Return the item's value (signed per the item), without checks."""
-        item = BY_NAME[name]
-        return _STRUCTS[name].unpack_from(self._data, item.address)[0]
+        unpack_from, address = _GETTERS[name]
+        return unpack_from(self._data, address)[0]
 
     def set(self, name: str, value: int) -> None:  # noqa: A003 (register store protocol)
         """Store value (wrapped to the item's size), without checks."""

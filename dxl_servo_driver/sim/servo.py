@@ -37,6 +37,7 @@ from typing import Protocol
 from dxl_servo_driver.control_table import BAUD_RATES, BY_NAME
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, Instruction, ParseEvent)
+from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
 
 CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
@@ -117,11 +118,15 @@ class SimServo:
         dt_s = now_s - self._last_s
         if dt_s <= 0.0:
             return
-        self._last_s = now_s
         if not self.powered:
+            self._last_s = now_s
             return
         memory = self.memory
-        self.latch_errors(self.dynamics.advance(dt_s, memory))
+        # The servo's controllers sample once per control period: packets closer together
+        # than that see the registers of the last sample, which also keeps a busy bus cheap.
+        if dt_s >= CONTROL_PERIOD_S:
+            self._last_s = now_s
+            self.latch_errors(self.dynamics.advance(dt_s, memory))
         tick_ms = int((now_s - self._power_on_s) * 1000.0)
         memory.set('realtime_tick', max(tick_ms, 0) % 32768)
 

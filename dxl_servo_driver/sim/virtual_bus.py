@@ -36,7 +36,8 @@ from typing import Callable, NoReturn, Sequence, TextIO
 from dxl_servo_driver import control_table, protocol
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
-from dxl_servo_driver.sim.timing import hybrid_wait, LatenessStats, SPIN_S, WireScheduler
+from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
+from dxl_servo_driver.sim.timing import WireScheduler
 
 PTS_PREFIX = '/dev/pts/'
 READ_CHUNK = 4096
@@ -126,6 +127,45 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -
                     time.sleep(0.01)
 
 
+class GoalTracer:
+    """
+    Log every goal_position the host writes, with the time it reached the bus.
+
+    One line per goal: `<time.monotonic()> <id> <raw goal>`. CLOCK_MONOTONIC is shared by every
+    process of the machine, so the benchmark compares these times with its own publication times
+    to measure command latency.
+    """
+
+    def __init__(self, out: TextIO) -> None:
+        self._out = out
+        self._parser = protocol.StreamParser()
+        self._address = control_table.BY_NAME['goal_position'].address
+
+    def feed(self, data: bytes, now_s: float) -> None:
+        """Look at bytes from the host; log the goals found in whole packets."""
+        for event in self._parser.feed(data, now_s):
+            packet = event.packet
+            if not event.crc_ok or len(packet.params) < 4:
+                continue
+            params = packet.params
+            address = params[0] | (params[1] << 8)
+            if packet.instruction == protocol.Instruction.WRITE and address == self._address:
+                if len(params) == 6:
+                    self._log(now_s, packet.servo_id, params[2:6])
+            elif packet.instruction == protocol.Instruction.SYNC_WRITE \
+                    and address == self._address:
+                length = params[2] | (params[3] << 8)
+                if length != 4:
+                    continue
+                for start in range(4, len(params) - 4, 5):
+                    self._log(now_s, params[start], params[start + 1:start + 5])
+        self._out.flush()
+
+    def _log(self, now_s: float, servo_id: int, raw: bytes) -> None:
+        value = int.from_bytes(raw, 'little', signed=True)
+        self._out.write(f'{now_s:.6f} {servo_id} {value}\n')
+
+
 class VirtualBusServer:
     """Serve a SimBus on a pseudo-terminal."""
 
@@ -145,6 +185,8 @@ class VirtualBusServer:
         os.set_blocking(self._wake_w, False)
         self._stopping = False
         self.device = ''
+        self.goal_tracer: 'GoalTracer | None' = None
+        self.spin_s = SPIN_S
 
     def open_pty(self, initial_baud_bps: int) -> str:
         """Create the pty in raw mode; return the slave's device path."""
@@ -169,10 +211,13 @@ class VirtualBusServer:
 
     def serve(self) -> None:
         """Move bytes between the pty and the bus until stop()."""
+        if self.timing == 'wire' and self._clock is time.monotonic:
+            self.spin_s = fine_timer_slack()
         while not self._stopping:
             timeout_s = 0.5
             if self._pending:
-                timeout_s = min(timeout_s, max(0.0, self._pending[0][0] - self._clock() - SPIN_S))
+                timeout_s = min(timeout_s,
+                                max(0.0, self._pending[0][0] - self._clock() - self.spin_s))
             try:
                 readable, _, _ = select.select([self._master, self._wake_r], [], [], timeout_s)
             except InterruptedError:  # pragma: no cover - PEP 475 retries; kept for safety
@@ -206,6 +251,8 @@ class VirtualBusServer:
         if not data:
             return
         now_s = self._clock()
+        if self.goal_tracer is not None:
+            self.goal_tracer.feed(data, now_s)
         baud_bps = tty_speed_bps(self._slave)
         replies = self.bus.feed(data, baud_bps)
         if self.timing == 'instant':
@@ -221,9 +268,9 @@ class VirtualBusServer:
         self._seq += 1
 
     def _deliver_due(self) -> None:
-        while self._pending and self._pending[0][0] <= self._clock() + SPIN_S:
+        while self._pending and self._pending[0][0] <= self._clock() + self.spin_s:
             due_s, _, data = heapq.heappop(self._pending)
-            hybrid_wait(due_s, self._clock)
+            hybrid_wait(due_s, self._clock, spin_s=self.spin_s)
             self.stats.record(self._clock() - due_s)
             try:
                 written = os.write(self._master, data)
@@ -255,6 +302,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--return-delay-time', type=int, default=None, metavar='RAW',
                         help='Return Delay Time register (2 us units, 0..254)')
     parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
+    parser.add_argument('--trace-goals', default=None, metavar='FILE',
+                        help='append "<monotonic time> <id> <goal_position>" per goal written')
     args = parser.parse_args(argv)
     bad_ids = [i for i in args.ids if not 0 <= i <= control.MAX_SERVO_ID]
     if bad_ids:
@@ -333,6 +382,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
         return 1
     server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0)
+    trace_file = None
+    if args.trace_goals:
+        try:
+            trace_file = open(args.trace_goals, 'a', encoding='ascii')
+        except OSError as exc:
+            print(f'virtual_bus: error: cannot open {args.trace_goals}: {exc.strerror}',
+                  file=sys.stderr, flush=True)
+            return 1
+        server.goal_tracer = GoalTracer(trace_file)
 
     def on_signal(signum: int, frame: object) -> None:
         server.stop()
@@ -363,6 +421,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if linked:
             _remove_link(args.link, device)
         server.close()
+        if trace_file is not None:
+            trace_file.close()
     return 0
 
 

@@ -1,0 +1,440 @@
+"""
+`make bench`: the driver against the stock SDK on a simulated bus paced like the real wire.
+
+For N = 1, 6, 12, 24 servos at 1 and 4 Mbps (Return Delay Time 0), one `virtual_bus --timing
+wire` serves three variants in turn, interleaved round by round so that machine noise hits all
+alike:
+- sdk_baseline: the plain dynamixel_sdk GroupSyncRead + GroupSyncWrite loop (worker process);
+- bus: the driver's bus layer running the node's cycle without ROS (worker process);
+- node: the full node (its installed executable), driven through its lifecycle, joint_states
+  counted by a subscriber here, commands published here and seen on the wire by the simulator.
+CPU per cycle comes from each process's own accounting (process_time, /proc/PID/stat for the
+node). The bus limit of each variant comes from the bytes it puts on the wire. The simulator's
+own pacing (how late it delivered replies) is reported so that a slow simulator is not taken
+for a slow driver. Results: bench-results/bench.json, bench-results/bench.png, a table on stdout.
+"""
+
+import json
+import os
+import pathlib
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from typing import Any, Dict, List, Optional, Tuple
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from dxl_servo_driver import model  # noqa: E402 - after the path set-up above
+
+BAUDS = (1_000_000, 4_000_000)
+COUNTS = (1, 6, 12, 24)
+VARIANTS = ('sdk_baseline', 'bus', 'node')
+ROUNDS = int(os.environ.get('BENCH_ROUNDS', '2'))
+SECONDS = float(os.environ.get('BENCH_SECONDS', '1.5'))
+NAMESPACE = '/bench'
+NODE_NAME = 'dxl_servo_driver'
+COMMAND_RATE_HZ = 50.0
+CLOCK_TICK_S = 1.0 / os.sysconf('SC_CLK_TCK')
+SDK_READ_BYTES = 10     # present_current + present_velocity + present_position
+WRITE_BYTES = 4         # goal_position
+HEALTH_RATE_HZ = 10.0   # the node reads its whole state block at state_rate (default 10 Hz)
+
+
+def percentile(values: List[float], fraction: float) -> float:
+    """Return the value below which `fraction` of the values lie (nearest rank)."""
+    ordered = sorted(values)
+    index = min(len(ordered) - 1, max(0, int(round(fraction * len(ordered) + 0.5)) - 1))
+    return ordered[index]
+
+
+class VirtualBus:
+    """A virtual_bus subprocess with wire timing and its control lines."""
+
+    def __init__(self, n: int, baud: int, workdir: pathlib.Path) -> None:
+        self.link = str(workdir / f'ttyBENCH_{n}_{baud}')
+        self.trace = workdir / f'goals_{n}_{baud}.txt'
+        self.process = subprocess.Popen(
+            [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus',
+             '--ids', *[str(i) for i in range(1, n + 1)], '--baud', str(baud),
+             '--timing', 'wire', '--return-delay-time', '0', '--link', self.link,
+             '--trace-goals', str(self.trace)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+        self.device = self.process.stdout.readline().strip()
+        if not self.device:
+            raise RuntimeError('virtual_bus did not start')
+
+    def control(self, line: str) -> str:
+        """Send one control line; return its one-line answer."""
+        self.process.stdin.write(line + '\n')
+        self.process.stdin.flush()
+        return self.process.stdout.readline().strip()
+
+    def pacing(self) -> Dict[str, float]:
+        """Return how late the simulator delivered its replies (stats control line)."""
+        answer = self.control('stats')
+        fields = dict(part.split('=', 1) for part in answer.split()[2:] if '=' in part)
+        return {key: float(value) for key, value in fields.items()}
+
+    def goals(self) -> List[Tuple[float, int, int]]:
+        """Return (time, id, raw goal) of every goal the simulator saw on the wire."""
+        if not self.trace.exists():
+            return []
+        rows = []
+        for line in self.trace.read_text().splitlines():
+            t, servo_id, value = line.split()
+            rows.append((float(t), int(servo_id), int(value)))
+        return rows
+
+    def close(self) -> None:
+        """Stop the subprocess."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+
+def run_worker(variant: str, n: int, baud: int, link: str) -> Dict[str, float]:
+    """Run the sdk or bus loop in its own process."""
+    name = {'sdk_baseline': 'sdk', 'bus': 'bus'}[variant]
+    out = subprocess.run(
+        [sys.executable, str(ROOT / 'bench' / 'workers.py'), name, str(n), str(baud), link,
+         str(SECONDS)], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    if out.returncode != 0:
+        raise RuntimeError(f'{variant} worker failed: {out.stderr.strip()[-500:]}')
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def cpu_seconds(pid: int) -> float:
+    """Return user + system CPU seconds of a process, from /proc."""
+    fields = pathlib.Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) * CLOCK_TICK_S
+
+
+class NodeUnderTest:
+    """The installed node executable, driven through its lifecycle by a client node here."""
+
+    def __init__(self, n: int, baud: int, link: str, workdir: pathlib.Path) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from dxl_servo_driver_msgs.msg import JointCommand
+        from lifecycle_msgs.srv import ChangeState
+        from sensor_msgs.msg import JointState
+        from ament_index_python.packages import get_package_prefix
+        self.n = n
+        self.joints = [f'j{i}' for i in range(1, n + 1)]
+        params = workdir / f'params_{n}_{baud}.yaml'
+        lines = ['/**:', '  ros__parameters:', f'    port: {link}', f'    baud_rate: {baud}',
+                 '    loop_rate: 10000.0', '    latency_timer: 0.0', '    autostart: false',
+                 f'    state_rate: {HEALTH_RATE_HZ}', f'    joints: [{", ".join(self.joints)}]']
+        for i, joint in enumerate(self.joints, start=1):
+            lines += [f'    {joint}:', f'      id: {i}', '      operating_mode: position']
+        params.write_text('\n'.join(lines) + '\n')
+        exe = pathlib.Path(get_package_prefix('dxl_servo_driver')) / 'lib' / 'dxl_servo_driver'
+        self.log = open(workdir / f'node_{n}_{baud}.log', 'w')
+        self.process = subprocess.Popen(
+            [str(exe / 'node'), '--ros-args', '--params-file', str(params),
+             '-r', f'__ns:={NAMESPACE}'], stdout=self.log, stderr=subprocess.STDOUT, cwd=ROOT)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.client = rclpy.create_node('bench_client', context=self.context)
+        self.count = 0
+        self.counting = False
+        self.client.create_subscription(JointState, f'{NAMESPACE}/joint_states',
+                                        self._on_state, 100)
+        self.publisher = self.client.create_publisher(
+            JointCommand, f'{NAMESPACE}/{NODE_NAME}/commands/position', 10)
+        self.change = self.client.create_client(ChangeState,
+                                                f'{NAMESPACE}/{NODE_NAME}/change_state')
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.client)
+        self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
+        self.spinner.start()
+        self._msg_type = JointCommand
+        self._change_type = ChangeState
+        if not self.change.wait_for_service(timeout_sec=20.0):
+            raise RuntimeError('the node did not come up (see its log in the bench work dir)')
+
+    def _on_state(self, msg: Any) -> None:
+        if self.counting and len(msg.name) == self.n:
+            self.count += 1
+
+    def transition(self, transition_id: int) -> None:
+        """Ask for a lifecycle transition and wait for it."""
+        request = self._change_type.Request()
+        request.transition.id = transition_id
+        future = self.change.call_async(request)
+        deadline = time.monotonic() + 20.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not future.done() or not future.result().success:
+            raise RuntimeError(f'lifecycle transition {transition_id} failed')
+
+    def measure(self) -> Dict[str, Any]:
+        """Activate, count joint_states and publish commands for SECONDS, deactivate."""
+        self.transition(1)   # configure
+        self.transition(3)   # activate
+        time.sleep(0.3)      # warm-up
+        published: List[Tuple[float, int]] = []
+        self.count = 0
+        cpu0 = cpu_seconds(self.process.pid)
+        wall0 = time.monotonic()
+        self.counting = True
+        next_command = wall0
+        k = 0
+        while time.monotonic() - wall0 < SECONDS:
+            now = time.monotonic()
+            if now >= next_command:
+                raw = 1000 + (k % 2000)
+                k += 1
+                msg = self._msg_type()
+                msg.name = self.joints
+                msg.value = [model.position_to_rad(raw)] * self.n
+                published.append((time.monotonic(), raw))
+                self.publisher.publish(msg)
+                next_command += 1.0 / COMMAND_RATE_HZ
+            time.sleep(0.002)
+        self.counting = False
+        wall = time.monotonic() - wall0
+        cpu = cpu_seconds(self.process.pid) - cpu0
+        cycles = self.count
+        self.transition(4)   # deactivate
+        self.transition(2)   # cleanup: releases the port for the other variants
+        return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': 0,
+                'published': published, 'window': (wall0, wall0 + wall)}
+
+    def close(self) -> None:
+        """Stop the node and the client."""
+        self.executor.shutdown()
+        self.client.destroy_node()
+        import rclpy
+        rclpy.try_shutdown(context=self.context)
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.log.close()
+
+
+def wire_bytes(variant: str, n: int, rate_hz: float, writes_per_cycle: float) -> float:
+    """Return the average bytes one cycle of a variant puts on the wire."""
+    if variant == 'sdk_baseline':
+        return model.sync_read_bytes(n, SDK_READ_BYTES) + model.sync_write_bytes(n, WRITE_BYTES)
+    block = model.STATE_BLOCK
+    read = model.sync_read_bytes(n, block.motion_size)
+    if variant == 'bus':
+        return read + model.sync_write_bytes(n, WRITE_BYTES)
+    # The node reads the whole block HEALTH_RATE_HZ times a second and writes only when a
+    # command arrived.
+    full_share = min(1.0, HEALTH_RATE_HZ / rate_hz) if rate_hz else 0.0
+    extra = full_share * n * (block.size - block.motion_size)
+    return read + extra + writes_per_cycle * model.sync_write_bytes(n, WRITE_BYTES)
+
+
+def command_latencies(published: List[Tuple[float, int]],
+                      seen: List[Tuple[float, int, int]]) -> List[float]:
+    """Return publication-to-wire latencies (s) of the commands the simulator saw."""
+    first_seen: Dict[int, float] = {}
+    for t, servo_id, value in seen:
+        if servo_id == 1 and value not in first_seen:
+            first_seen[value] = t
+    latencies = []
+    for t_pub, raw in published:
+        t_seen = first_seen.get(raw)
+        if t_seen is not None and t_seen >= t_pub:
+            latencies.append(t_seen - t_pub)
+    return latencies
+
+
+def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
+    """Measure the three variants on one simulated bus."""
+    bus = VirtualBus(n, baud, workdir)
+    node: Optional[NodeUnderTest] = None
+    samples: Dict[str, List[Dict[str, Any]]] = {variant: [] for variant in VARIANTS}
+    try:
+        node = NodeUnderTest(n, baud, bus.link, workdir)
+        for round_index in range(ROUNDS):
+            order = VARIANTS[round_index % 3:] + VARIANTS[:round_index % 3]
+            for variant in order:
+                if variant == 'node':
+                    samples[variant].append(node.measure())
+                else:
+                    samples[variant].append(run_worker(variant, n, baud, bus.link))
+        pacing = bus.pacing()
+        seen = bus.goals()
+    finally:
+        if node is not None:
+            node.close()
+        bus.close()
+    rows = []
+    for variant in VARIANTS:
+        runs = samples[variant]
+        cycles = sum(run['cycles'] for run in runs)
+        wall = sum(run['wall_s'] for run in runs)
+        cpu = sum(run['cpu_s'] for run in runs)
+        rate = cycles / wall if wall else 0.0
+        writes_per_cycle = 1.0
+        latencies: List[float] = []
+        if variant == 'node':
+            writes = 0
+            for run in runs:
+                start, end = run['window']
+                writes += len({t for t, servo_id, _ in seen
+                               if servo_id == 1 and start <= t <= end})
+                latencies += command_latencies(run['published'], seen)
+            writes_per_cycle = writes / cycles if cycles else 0.0
+        per_cycle_bytes = wire_bytes(variant, n, rate, writes_per_cycle)
+        bus_time_s = per_cycle_bytes * model.BITS_PER_BYTE / baud
+        row: Dict[str, Any] = {
+            'n': n, 'baud': baud, 'variant': variant,
+            'rate_hz': round(rate, 1),
+            'bus_limit_hz': round(1.0 / bus_time_s, 1),
+            'rate_ratio': round(rate * bus_time_s, 3),
+            'cpu_per_cycle_over_bus_time':
+                round((cpu / cycles) / bus_time_s, 3) if cycles else None,
+            'cpu_per_cycle_us': round(cpu / cycles * 1e6, 1) if cycles else None,
+            'bytes_per_cycle': round(per_cycle_bytes, 1),
+            'cycles': cycles,
+            'failed_cycles': sum(run['failures'] for run in runs),
+            'sim_late_p50_us': pacing.get('late_p50_us'),
+            'sim_late_p99_us': pacing.get('late_p99_us'),
+        }
+        if variant == 'node':
+            row['writes_per_cycle'] = round(writes_per_cycle, 3)
+            row['commands_seen'] = len(latencies)
+            if latencies:
+                row['command_latency_p50_ms'] = round(statistics.median(latencies) * 1e3, 3)
+                row['command_latency_p99_ms'] = round(percentile(latencies, 0.99) * 1e3, 3)
+            else:
+                row['command_latency_p50_ms'] = row['command_latency_p99_ms'] = None
+        rows.append(row)
+    return rows
+
+
+def machine() -> Dict[str, Any]:
+    """Describe the machine the figures come from."""
+    cpu = 'unknown'
+    try:
+        for line in pathlib.Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                cpu = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {'cpu': cpu, 'cores': os.cpu_count(), 'python': platform.python_version(),
+            'kernel': platform.release(), 'rounds': ROUNDS, 'seconds_per_round': SECONDS,
+            'date': time.strftime('%Y-%m-%d')}
+
+
+def targets(rows: List[Dict[str, Any]]) -> List[str]:
+    """Check SPEC section 5's targets at N = 12, 4 Mbps."""
+    at = {row['variant']: row for row in rows if row['n'] == 12 and row['baud'] == 4_000_000}
+    if len(at) < 3:
+        return ['N = 12 at 4 Mbps was not measured']
+    bus, node, sdk = at['bus'], at['node'], at['sdk_baseline']
+    period_ms = 1e3 / node['rate_hz'] if node['rate_hz'] else float('inf')
+    bus_ms = 1e3 / node['bus_limit_hz']
+    checks = [
+        ('bus rate_ratio >= 0.85', bus['rate_ratio'] >= 0.85, bus['rate_ratio']),
+        ('bus cpu <= 0.25 x bus time', bus['cpu_per_cycle_over_bus_time'] <= 0.25,
+         bus['cpu_per_cycle_over_bus_time']),
+        ('node rate_ratio >= 0.75', node['rate_ratio'] >= 0.75, node['rate_ratio']),
+        ('node cpu <= 0.35 x bus time', node['cpu_per_cycle_over_bus_time'] <= 0.35,
+         node['cpu_per_cycle_over_bus_time']),
+        (f'node latency p99 <= period + bus time ({period_ms + bus_ms:.2f} ms)',
+         node['command_latency_p99_ms'] is not None
+         and node['command_latency_p99_ms'] <= period_ms + bus_ms,
+         node['command_latency_p99_ms']),
+        ('bus faster than sdk_baseline', bus['rate_hz'] > sdk['rate_hz'],
+         f'{bus["rate_hz"]} vs {sdk["rate_hz"]} Hz'),
+        ('node faster than sdk_baseline', node['rate_hz'] > sdk['rate_hz'],
+         f'{node["rate_hz"]} vs {sdk["rate_hz"]} Hz'),
+    ]
+    return [f'{"met " if ok else "MISSED"}  {name}: {value}' for name, ok, value in checks]
+
+
+def table(rows: List[Dict[str, Any]]) -> str:
+    """Format the results as a text table."""
+    head = (f'{"baud":>8} {"N":>3} {"variant":<13} {"rate Hz":>8} {"limit Hz":>9} '
+            f'{"ratio":>6} {"cpu/bus":>8} {"cpu us":>7} {"lat p50":>8} {"lat p99":>8} '
+            f'{"sim p99us":>9}')
+    lines = [head, '-' * len(head)]
+    for row in rows:
+        p50 = row.get('command_latency_p50_ms')
+        p99 = row.get('command_latency_p99_ms')
+        lines.append(
+            f'{row["baud"]:>8} {row["n"]:>3} {row["variant"]:<13} {row["rate_hz"]:>8.0f} '
+            f'{row["bus_limit_hz"]:>9.0f} {row["rate_ratio"]:>6.2f} '
+            f'{row["cpu_per_cycle_over_bus_time"]:>8.2f} {row["cpu_per_cycle_us"]:>7.0f} '
+            f'{(f"{p50:.2f}" if p50 is not None else "-"):>8} '
+            f'{(f"{p99:.2f}" if p99 is not None else "-"):>8} '
+            f'{row["sim_late_p99_us"] or 0:>9.0f}')
+    return '\n'.join(lines)
+
+
+def plot(rows: List[Dict[str, Any]], path: pathlib.Path) -> None:
+    """Draw rate ratio and CPU ratio against N for each baud and variant."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(2, len(BAUDS), figsize=(11, 7), sharex=True)
+    for column, baud in enumerate(BAUDS):
+        for variant in VARIANTS:
+            points = sorted((r['n'], r['rate_ratio'], r['cpu_per_cycle_over_bus_time'])
+                            for r in rows if r['baud'] == baud and r['variant'] == variant)
+            if not points:
+                continue
+            ns = [p[0] for p in points]
+            axes[0][column].plot(ns, [p[1] for p in points], marker='o', label=variant)
+            axes[1][column].plot(ns, [p[2] for p in points], marker='o', label=variant)
+        axes[0][column].set_title(f'{baud / 1e6:g} Mbps, Return Delay Time 0')
+        axes[0][column].set_ylabel('rate / bus limit')
+        axes[0][column].set_ylim(0, 1.1)
+        axes[0][column].axhline(1.0, color='grey', linewidth=0.5)
+        axes[1][column].set_ylabel('CPU per cycle / bus time')
+        axes[1][column].set_xlabel('servos on the bus (N)')
+        axes[1][column].set_xticks(list(COUNTS))
+        axes[0][column].legend()
+    figure.suptitle('dxl_servo_driver vs dynamixel_sdk on virtual_bus --timing wire')
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def main() -> int:
+    """Run every case, write the JSON and the plot, print the table."""
+    out_dir = ROOT / 'bench-results'
+    out_dir.mkdir(exist_ok=True)
+    counts = [int(c) for c in os.environ.get('BENCH_COUNTS', ' '.join(map(str, COUNTS))).split()]
+    bauds = [int(b) for b in os.environ.get('BENCH_BAUDS', ' '.join(map(str, BAUDS))).split()]
+    rows: List[Dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
+        workdir = pathlib.Path(tmp)
+        for baud in bauds:
+            for n in counts:
+                print(f'bench: N={n} at {baud} bps ...', file=sys.stderr, flush=True)
+                rows.extend(run_case(n, baud, workdir))
+    result = {'machine': machine(), 'cases': rows}
+    (out_dir / 'bench.json').write_text(json.dumps(result, indent=1) + '\n')
+    plot(rows, out_dir / 'bench.png')
+    print(table(rows))
+    print()
+    for line in targets(rows):
+        print(line)
+    print(f'\nwritten: {out_dir / "bench.json"}, {out_dir / "bench.png"}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

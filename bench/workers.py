@@ -1,0 +1,88 @@
+"""
+The two loops the benchmark compares with the node, each run in its own process.
+
+`python bench/workers.py sdk|bus N BAUD PORT SECONDS` prints one JSON line: cycles, wall seconds,
+CPU seconds (this process's own accounting), failed cycles. Both loops do what a control loop does:
+read position, velocity and current of every servo, then write a goal position to every servo.
+"""
+
+import json
+import struct
+import sys
+import time
+from typing import Dict
+
+
+def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, float]:
+    """Run the loop every dynamixel_sdk user writes: GroupSyncRead + GroupSyncWrite."""
+    import dynamixel_sdk as sdk
+    port = sdk.PortHandler(port_name)
+    if not port.openPort() or not port.setBaudRate(baud):
+        raise SystemExit(f'cannot open {port_name} at {baud}')
+    packet = sdk.PacketHandler(2.0)
+    # present_current (126, 2) + present_velocity (128, 4) + present_position (132, 4)
+    reader = sdk.GroupSyncRead(port, packet, 126, 10)
+    writer = sdk.GroupSyncWrite(port, packet, 116, 4)
+    ids = range(1, n + 1)
+    for servo_id in ids:
+        reader.addParam(servo_id)
+        writer.addParam(servo_id, [0x00, 0x08, 0x00, 0x00])
+    cycles = failures = 0
+    wall0 = time.monotonic()
+    cpu0 = time.process_time()
+    while time.monotonic() - wall0 < seconds:
+        if reader.txRxPacket() != sdk.COMM_SUCCESS:
+            failures += 1
+        for servo_id in ids:
+            if reader.isAvailable(servo_id, 126, 10):
+                reader.getData(servo_id, 132, 4)
+                reader.getData(servo_id, 128, 4)
+                reader.getData(servo_id, 126, 2)
+        writer.txPacket()
+        cycles += 1
+    wall = time.monotonic() - wall0
+    cpu = time.process_time() - cpu0
+    port.closePort()
+    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures}
+
+
+def bus_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, float]:
+    """Run the driver's bus layer as the node's cycle does, without ROS."""
+    sys.path.insert(0, '.')
+    from dxl_servo_driver import model
+    from dxl_servo_driver.bus import Bus, open_port
+    block = model.STATE_BLOCK
+    bus = Bus(open_port(port_name, baud), baud, latency_timer_s=0.0, return_delay_s=0.0)
+    ids = list(range(1, n + 1))
+    for servo_id in ids:
+        bus.write(servo_id, block.indirect_map_address(), block.indirect_map_bytes())
+    goals = [(servo_id, struct.pack('<i', 2048)) for servo_id in ids]
+    cycles = failures = 0
+    wall0 = time.monotonic()
+    cpu0 = time.process_time()
+    decode = block.decode_motion
+    while time.monotonic() - wall0 < seconds:
+        results = bus.sync_read(block.read_address, block.motion_size, ids)
+        for servo_id in ids:
+            data = results[servo_id]
+            if isinstance(data, bytes):
+                decode(data)
+            else:
+                failures += 1
+        bus.sync_write(116, 4, goals)
+        cycles += 1
+    wall = time.monotonic() - wall0
+    cpu = time.process_time() - cpu0
+    bus.close()
+    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures}
+
+
+def main() -> None:
+    """Run one loop and print its figures as JSON."""
+    variant, n, baud, port_name, seconds = sys.argv[1:6]
+    loop = {'sdk': sdk_loop, 'bus': bus_loop}[variant]
+    print(json.dumps(loop(int(n), int(baud), port_name, float(seconds))), flush=True)
+
+
+if __name__ == '__main__':
+    main()
