@@ -32,6 +32,7 @@ IDX_MOVING = _I['moving']
 IDX_MOVING_STATUS = _I['moving_status']
 IDX_HW_ERROR = _I['hardware_error_status']
 IDX_TORQUE = _I['torque_enable']
+IDX_CANARY = BLOCK.canary_index
 WARN_INTERVAL_S = 2.0
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.MOTION_FIELDS)
 
@@ -152,7 +153,7 @@ class Manager:
         self.health_period_s = 0.1
         self._last_full_s = -1e9
         self._need_full = True
-        self._ids_cache: List[Servo] = []
+        self._ids_cache: List[Tuple[Servo, int]] = []
         self._id_list: List[int] = []
 
     # configure / activate ---------------------------------------------------------------
@@ -197,8 +198,8 @@ class Manager:
 
     def _refresh_ids(self) -> None:
         # The hot path reads these instead of rebuilding lists every cycle.
-        self._ids_cache = self.active_servos()
-        self._id_list = [servo.servo_id for servo in self._ids_cache]
+        self._ids_cache = [(servo, servo.servo_id) for servo in self.active_servos()]
+        self._id_list = [servo_id for _, servo_id in self._ids_cache]
 
     def _find_servos(self) -> None:
         assert self.bus is not None
@@ -366,14 +367,12 @@ class Manager:
             if full:
                 self._last_full_s = stamp
             alerts = self.bus.alerts
-            for servo in servos:
-                data = results.get(servo.servo_id)
+            decode = BLOCK.decode if full else BLOCK.decode_motion
+            for servo, servo_id in servos:
+                data = results.get(servo_id)
                 if isinstance(data, bytes):
-                    if full:
-                        values = BLOCK.decode(data)
-                    else:
-                        values = BLOCK.decode_motion(data)
-                    if BLOCK.restarted(values):
+                    values = decode(data)
+                    if values[IDX_CANARY] == 0:   # BLOCK.restarted(), inlined
                         servo.fresh = False
                         self._recover_restart(servo)
                         continue
@@ -386,7 +385,7 @@ class Manager:
                         # Motion is good; the health part is not known yet (health_time 0).
                         servo.state = values + _NO_HEALTH
                         self._need_full = True
-                    if alerts.get(servo.servo_id) and not servo.state[IDX_HW_ERROR]:
+                    if alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
                         self._need_full = True   # a new hardware error: decode it next cycle
                     servo.state_time = stamp
                     servo.fresh = True

@@ -107,6 +107,12 @@ class DriverNode(LifecycleNode):
         self._last_state_s = 0.0
         self._last_diag_s = 0.0
         self._joint_state = JointState()
+        assert (IDX_POSITION, IDX_VELOCITY, IDX_CURRENT) == (0, 1, 2)
+        # (servo, joint name, N*m per current unit) per joint, in joint_states order.
+        self._joint_table = [
+            (servo, servo.name, model.A_PER_CURRENT_RAW * servo.joint.torque_constant_nm_per_a)
+            for servo in self.manager.order]
+        self._all_names = [servo.name for servo in self.manager.order]
         self.joint_states_pub = self.create_publisher(JointState, 'joint_states', 10)
         self.servo_states_pub = self.create_publisher(ServoStateArray, '~/servo_states', 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -307,15 +313,20 @@ class DriverNode(LifecycleNode):
         positions = []
         velocities = []
         efforts = []
-        for servo in self.manager.order:
+        # The conversions of model.py, inlined with per-joint constants: this runs every cycle.
+        rad_per_pulse = model.RAD_PER_PULSE
+        zero = model.POSITION_ZERO_RAW
+        rad_s = model.RAD_S_PER_VELOCITY_RAW
+        for servo, name, nm_per_raw in self._joint_table:
             state = servo.state
             if not servo.fresh or state is None:
                 continue   # never a stale or invented value
-            names.append(servo.name)
-            positions.append(model.position_to_rad(state[IDX_POSITION]))
-            velocities.append(model.velocity_to_rad_s(state[IDX_VELOCITY]))
-            efforts.append(model.current_to_a(state[IDX_CURRENT])
-                           * servo.joint.torque_constant_nm_per_a)
+            names.append(name)
+            positions.append((state[0] - zero) * rad_per_pulse)
+            velocities.append(state[1] * rad_s)
+            efforts.append(state[2] * nm_per_raw)
+        if len(names) == len(self._all_names):
+            names = self._all_names
         msg.name = names
         msg.position = positions
         msg.velocity = velocities
