@@ -1,0 +1,467 @@
+"""
+`scan`: find the Dynamixel servos on a serial port, at every baud rate, and describe them.
+
+  scan --port /dev/ttyUSB0 [--baud B ...] [--ids ID ...] [--output FILE]
+       [--protocol-timeout-ms MS]
+
+At each baud rate (by default every one of the servo's baud table, the most common first) it
+sends a broadcast PING, or with --ids pings those ids one by one, then reads each servo's firmware
+version, operating mode and hardware error status. Progress goes to stderr; stdout gets one line
+per servo found. With --output it writes a parameter file the driver node runs as it is.
+
+Exit status: 0 servos found (and the file written), 1 no servo found, 2 bad arguments, 3 the port
+cannot be opened or was lost, 4 the parameter file cannot be written, 130 interrupted.
+
+Plain CLI: no ROS. It talks to the servos only through dxl_servo_driver.bus.Bus.
+"""
+
+import argparse
+from dataclasses import dataclass
+import datetime
+import os
+import sys
+from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set, TextIO, Tuple
+
+from dxl_servo_driver import config
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.bus import Bus, BusError, CorruptReply, open_port, PortError
+
+EXIT_OK = 0
+EXIT_NOT_FOUND = 1
+EXIT_USAGE = 2
+EXIT_PORT = 3
+EXIT_OUTPUT = 4
+EXIT_INTERRUPTED = 130
+
+# Most common first: 57600 is the factory default, 1 Mbps what most robot arms are set to; 9600
+# last, as its broadcast PING waits longest (the SDK waits for 252 replies' worth of bytes).
+PREFERRED_BAUDS = (57600, 1_000_000)
+MODEL_NAMES: Dict[int, str] = {ct.MODEL_NUMBER: 'XM430-class'}
+UNKNOWN_MODEL = 'unknown model'
+MAX_ID = 252
+# A scan is not time-critical: wait generously for each reply beyond its wire time (the USB
+# adapter's latency timer alone is 16 ms by default on Linux).
+DEFAULT_PROTOCOL_TIMEOUT_MS = 50.0
+# The largest Return Delay Time a servo can have: 254 x 2 us.
+MAX_RETURN_DELAY_S = 254 * 2e-6
+READ_ATTEMPTS = 3
+SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
+HINT = ('Usual causes: the servos have no power (the LED blinks once at power-up); they use a '
+        'baud rate not tried (--baud) or an id not tried (--ids); they speak Protocol 1.0 '
+        '(set protocol_version to 2, e.g. with Dynamixel Wizard); the data line or the adapter '
+        '(U2D2) is miswired; or the replies come later than --protocol-timeout-ms (USB latency '
+        'timer: install udev/99-dxl-servo-driver.rules to set it to 1 ms).')
+
+
+def default_bauds() -> List[int]:
+    """Return every baud rate of the servo's table, in the order a scan tries them."""
+    rest = sorted(b for b in ct.BAUD_RATES.values() if b not in PREFERRED_BAUDS and b != 9600)
+    return list(PREFERRED_BAUDS) + rest + [9600]
+
+
+def model_name(model_number: int) -> str:
+    """Return the name of a model number, or 'unknown model'."""
+    return MODEL_NAMES.get(model_number, UNKNOWN_MODEL)
+
+
+def mode_name(mode_raw: int) -> Optional[str]:
+    """Return the operating mode's name (config spelling) for a register value, None if none."""
+    for name, value in ct.OPERATING_MODES.items():
+        if value == mode_raw:
+            return name
+    return None
+
+
+@dataclass(frozen=True)
+class FoundServo:
+    """One servo that answered, and what was read from it (None: not read or no reply)."""
+
+    servo_id: int
+    baud_bps: int
+    model_number: int
+    firmware_version: Optional[int] = None
+    operating_mode_raw: Optional[int] = None
+    hardware_error_status: Optional[int] = None
+
+    @property
+    def known_model(self) -> bool:
+        """Return whether the driver knows this model's control table."""
+        return self.model_number in MODEL_NAMES
+
+    @property
+    def operating_mode(self) -> Optional[str]:
+        """Return the operating mode by name, None if unread or not a valid mode."""
+        if self.operating_mode_raw is None:
+            return None
+        return mode_name(self.operating_mode_raw)
+
+    @property
+    def hardware_errors(self) -> Optional[List[str]]:
+        """Return the decoded hardware errors, None if unread."""
+        if self.hardware_error_status is None:
+            return None
+        return ct.decode_hardware_errors(self.hardware_error_status)
+
+
+def describe(servo: FoundServo) -> str:
+    """Return the one-line description of a servo that scan prints."""
+    parts = [f'id {servo.servo_id}: model {servo.model_number} ({model_name(servo.model_number)})']
+    fw = servo.firmware_version
+    parts.append(f'firmware {fw}' if fw is not None else 'firmware ? (no reply)')
+    parts.append(f'{servo.baud_bps} bps')
+    if not servo.known_model:
+        parts.append('mode not read (unknown control table)')
+        parts.append('hardware errors: not read')
+    else:
+        raw = servo.operating_mode_raw
+        if raw is None:
+            parts.append('mode ? (no reply)')
+        else:
+            parts.append(f'mode {servo.operating_mode or f"{raw} (not a valid mode)"}')
+        errors = servo.hardware_errors
+        status = servo.hardware_error_status
+        if errors is None or status is None:
+            parts.append('hardware errors: ? (no reply)')
+        elif status == 0:
+            parts.append('hardware errors: none')
+        else:
+            # Bits the seed does not name are shown as the raw value only.
+            parts.append(f'hardware errors: {", ".join(errors) or "unnamed bits"} '
+                         f'(0x{status:02x})')
+    return ', '.join(parts)
+
+
+@dataclass
+class ScanResult:
+    """The servos found, the baud rates tried, and what went wrong along the way."""
+
+    servos: List[FoundServo]
+    bauds_tried: List[int]
+    warnings: List[str]
+
+
+def _read_register(bus: Bus, servo_id: int, name: str) -> Optional[int]:
+    # A reply may come late on a busy machine or a noisy bus: a few tries before giving up.
+    item = ct.BY_NAME[name]
+    for _ in range(READ_ATTEMPTS):
+        try:
+            return bus.read_item(servo_id, item)
+        except PortError:
+            raise
+        except BusError:
+            continue
+    return None
+
+
+def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int) -> FoundServo:
+    # Firmware Version (6) is at the same address on every Protocol 2.0 servo; the others are
+    # read only from a model whose control table is known.
+    firmware = _read_register(bus, servo_id, 'firmware_version')
+    if model_number not in MODEL_NAMES:
+        return FoundServo(servo_id, baud_bps, model_number, firmware)
+    mode = _read_register(bus, servo_id, 'operating_mode')
+    errors = _read_register(bus, servo_id, 'hardware_error_status')
+    return FoundServo(servo_id, baud_bps, model_number, firmware, mode, errors)
+
+
+def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str]) -> Dict[int, int]:
+    found: Dict[int, int] = {}
+    for servo_id in ids:
+        try:
+            found[servo_id] = bus.ping(servo_id)
+        except PortError:
+            raise
+        except CorruptReply:
+            warnings.append(f'id {servo_id} at {bus.baud_bps} bps: garbled replies (two servos '
+                            'with the same id, or a noisy line?)')
+        except BusError:
+            continue
+    return found
+
+
+def set_baud(bus: Bus, baud_bps: int) -> None:
+    """Switch the port and the bus's timing to another baud rate."""
+    bus.port.baudrate = baud_bps
+    bus.baud_bps = baud_bps
+
+
+def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None,
+             progress: Callable[[str], None] = lambda line: None,
+             found_one: Callable[[FoundServo], None] = lambda servo: None) -> ScanResult:
+    """
+    Look for servos at each baud rate in turn; return what answered.
+
+    Without ids a broadcast PING finds them (when its replies are garbled, every id is pinged
+    one by one instead); with ids only those are pinged. progress gets one line per step,
+    found_one each servo as soon as it has been read. PortError propagates.
+    """
+    result = ScanResult([], [], [])
+    for baud_bps in bauds:
+        how = 'broadcast ping' if ids is None else f'ping of {len(ids)} id(s)'
+        progress(f'scanning {baud_bps} bps ({how}) ...')
+        try:
+            set_baud(bus, baud_bps)
+        except (OSError, ValueError) as exc:  # pyserial: SerialException is an OSError
+            result.warnings.append(f'the adapter refused {baud_bps} bps ({exc}); skipped')
+            continue
+        result.bauds_tried.append(baud_bps)
+        if ids is None:
+            try:
+                models = bus.broadcast_ping()
+            except PortError:
+                raise
+            except BusError as exc:
+                # Colliding replies (two servos with one id) spoil the whole broadcast.
+                progress(f'  {baud_bps} bps: {exc}; pinging ids 0..{MAX_ID} one by one ...')
+                models = _ping_ids(bus, range(MAX_ID + 1), result.warnings)
+        else:
+            models = _ping_ids(bus, ids, result.warnings)
+        for servo_id in sorted(models):
+            servo = _describe_servo(bus, servo_id, models[servo_id], baud_bps)
+            result.servos.append(servo)
+            found_one(servo)
+    return result
+
+
+def _plural(count: int, word: str) -> str:
+    return f'{count} {word}' + ('' if count == 1 else 's')
+
+
+def choose_baud(servos: Sequence[FoundServo]) -> int:
+    """Return the baud rate most servos answered at (ties: the one scanned first)."""
+    counts: Dict[int, int] = {}
+    for servo in servos:
+        counts[servo.baud_bps] = counts.get(servo.baud_bps, 0) + 1
+    return max(counts, key=lambda baud: counts[baud])  # max keeps the first of equals
+
+
+def build_parameters(port: str, servos: Sequence[FoundServo],
+                     latency_timer_ms: Optional[float] = None
+                     ) -> Tuple[Dict[str, Any], List[str]]:
+    """
+    Return the node's flat parameters for the servos found, and the comment lines to go with them.
+
+    Only servos at the chosen baud rate (the one most of them use), of a known model and in a
+    valid operating mode become joints; the others are listed in the comments. ValueError when
+    no servo qualifies; config.ConfigError when the result does not validate.
+    """
+    if not servos:
+        raise ValueError('no servo found: nothing to write')
+    baud_bps = choose_baud(servos)
+    params: Dict[str, Any] = {'port': port, 'baud_rate': baud_bps}
+    if latency_timer_ms is not None:
+        params['latency_timer'] = float(latency_timer_ms)
+    comments = [describe(servo) for servo in servos]
+    left_out: List[str] = []
+    joints: List[str] = []
+    ids: Set[int] = set()
+    for servo in sorted(servos, key=lambda s: (s.baud_bps != baud_bps, s.servo_id, s.baud_bps)):
+        if servo.baud_bps != baud_bps:
+            raw = {bps: raw for raw, bps in ct.BAUD_RATES.items()}[baud_bps]
+            left_out.append(f'id {servo.servo_id} answered at {servo.baud_bps} bps, not '
+                            f'{baud_bps}: set its baud_rate register to {raw} ({baud_bps} bps) '
+                            'or run a second node at its baud')
+        elif not servo.known_model:
+            left_out.append(f'id {servo.servo_id}: model {servo.model_number} is not one the '
+                            'driver knows')
+        elif servo.operating_mode is None:
+            left_out.append(f'id {servo.servo_id}: operating mode not read or not valid')
+        elif servo.servo_id in ids:
+            left_out.append(f'id {servo.servo_id}: listed twice')
+        else:
+            joint = f'joint_{servo.servo_id}'
+            ids.add(servo.servo_id)
+            joints.append(joint)
+            params[f'{joint}.id'] = servo.servo_id
+            params[f'{joint}.operating_mode'] = servo.operating_mode
+    if not joints:
+        raise ValueError('no servo the node could drive (' + '; '.join(left_out) + ')')
+    params['joints'] = joints
+    config.validate(params)
+    if left_out:
+        comments.append('Not configured below:')
+        comments.extend(f'  {line}' for line in left_out)
+    return params, comments
+
+
+def _yaml_string(text: str) -> str:
+    # Single-quoted YAML scalar: only the quote itself needs escaping (doubled).
+    return "'" + text.replace("'", "''") + "'"
+
+
+def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], header: str) -> str:
+    """Return the ROS 2 parameter file (`/**: ros__parameters:`) for build_parameters' output."""
+    lines = [f'# {header}']
+    lines.extend(f'#   {comment}' for comment in comments)
+    lines.append('/**:')
+    lines.append('  ros__parameters:')
+    lines.append(f'    port: {_yaml_string(params["port"])}')
+    lines.append(f'    baud_rate: {params["baud_rate"]}')
+    if 'latency_timer' in params:
+        lines.append(f'    latency_timer: {params["latency_timer"]}  # ms, read from the adapter')
+    lines.append(f'    joints: [{", ".join(params["joints"])}]')
+    for joint in params['joints']:
+        lines.append(f'    {joint}:')
+        lines.append(f'      id: {params[joint + ".id"]}')
+        lines.append(f'      operating_mode: {params[joint + ".operating_mode"]}')
+    return '\n'.join(lines) + '\n'
+
+
+def adapter_latency_timer_ms(device: str) -> Optional[float]:
+    """Return the USB serial adapter's latency timer in ms (Linux sysfs), None if unknown."""
+    name = os.path.basename(os.path.realpath(device))
+    try:
+        with open(SYSFS_LATENCY.format(name=name), encoding='ascii') as stream:
+            return float(stream.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+class _UsageError(Exception):
+    """Bad command-line arguments."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Argument errors raise instead of exiting, so main() returns the status."""
+
+    def error(self, message: str) -> NoReturn:
+        raise _UsageError(message)
+
+
+def _parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
+    bauds = sorted(ct.BAUD_RATES.values())
+    parser = _Parser(prog='scan', description='Find Dynamixel servos (Protocol 2.0) on a port.')
+    parser.add_argument('--port', required=True, help='serial device, e.g. /dev/ttyUSB0')
+    parser.add_argument('--baud', type=int, nargs='+', metavar='B',
+                        help=f'baud rates to try (default: all of {bauds})')
+    parser.add_argument('--ids', type=int, nargs='+', metavar='ID',
+                        help=f'ping only these ids (0..{MAX_ID}) instead of a broadcast ping')
+    parser.add_argument('--output', metavar='FILE',
+                        help='write a parameter file for the node with the servos found')
+    parser.add_argument('--protocol-timeout-ms', type=float, default=DEFAULT_PROTOCOL_TIMEOUT_MS,
+                        metavar='MS',
+                        help='wait for each reply beyond its time on the wire (default '
+                             f'{DEFAULT_PROTOCOL_TIMEOUT_MS:g}; covers the USB latency timer)')
+    args = parser.parse_args(argv)
+    if args.baud is not None:
+        bad = [b for b in args.baud if b not in bauds]
+        if bad:
+            parser.error(f'--baud {bad[0]}: the servo supports {bauds}')
+        args.baud = list(dict.fromkeys(args.baud))
+    if args.ids is not None:
+        bad = [i for i in args.ids if not 0 <= i <= MAX_ID]
+        if bad:
+            parser.error(f'--ids {bad[0]}: ids are 0..{MAX_ID}')
+        args.ids = list(dict.fromkeys(args.ids))
+    if not 0.0 < args.protocol_timeout_ms <= 10_000.0:  # also refuses nan
+        parser.error('--protocol-timeout-ms must be in (0, 10000]')
+    if args.output is not None:
+        folder = os.path.dirname(os.path.abspath(args.output))
+        if not os.path.isdir(folder):
+            parser.error(f'--output {args.output}: folder {folder} does not exist')
+        if os.path.isdir(args.output):
+            parser.error(f'--output {args.output} is a folder')
+    return args
+
+
+def _write_file(path: str, text: str) -> None:
+    temporary = f'{path}.tmp{os.getpid()}'
+    try:
+        with open(temporary, 'w', encoding='utf-8') as stream:
+            stream.write(text)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+
+
+def _report_bauds(servos: Sequence[FoundServo], err: TextIO) -> None:
+    bauds = list(dict.fromkeys(servo.baud_bps for servo in servos))
+    if len(bauds) > 1:
+        counts = ', '.join(
+            f'{_plural(sum(1 for s in servos if s.baud_bps == b), "servo")} at {b} bps'
+            for b in bauds)
+        print(f'scan: warning: the servos use different baud rates ({counts}); one bus runs '
+              'at one baud rate, so the node can reach only one group', file=err)
+
+
+def _output(args: argparse.Namespace, result: ScanResult, latency_ms: Optional[float],
+            err: TextIO) -> int:
+    try:
+        params, comments = build_parameters(args.port, result.servos, latency_ms)
+    except (ValueError, config.ConfigError) as exc:  # ConfigError is a ValueError too
+        print(f'scan: error: {args.output} not written: {exc}', file=err)
+        return EXIT_OUTPUT
+    stamp = datetime.datetime.now().isoformat(timespec='seconds')
+    header = (f'Written by `scan --port {args.port}` at {stamp}; run it with '
+              f'`ros2 run dxl_servo_driver node --ros-args --params-file {args.output}`.')
+    try:
+        _write_file(args.output, render_parameter_file(params, comments, header))
+    except OSError as exc:
+        print(f'scan: error: cannot write {args.output}: {exc.strerror or exc}', file=err)
+        return EXIT_OUTPUT
+    print(f'scan: wrote {args.output} ({_plural(len(params["joints"]), "joint")} at '
+          f'{params["baud_rate"]} bps)', file=err)
+    return EXIT_OK
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run the scan; return the exit status."""
+    out, err = sys.stdout, sys.stderr
+    try:
+        args = _parse_args(argv)
+    except _UsageError as exc:
+        print(f'scan: error: {exc}', file=err)
+        return EXIT_USAGE
+    except SystemExit as exc:  # --help
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    bauds = args.baud or default_bauds()
+    latency_ms = adapter_latency_timer_ms(args.port)
+    timeout_ms = args.protocol_timeout_ms
+    if latency_ms is not None:
+        timeout_ms = max(timeout_ms, latency_ms + 2.0)
+        if latency_ms > 1.0:
+            print(f'scan: note: the adapter latency timer is {latency_ms:g} ms; 1 ms makes the '
+                  'bus much faster (install udev/99-dxl-servo-driver.rules)', file=err)
+    try:
+        port = open_port(args.port, bauds[0])
+    except PortError as exc:
+        print(f'scan: error: {exc}', file=err)
+        return EXIT_PORT
+    bus = Bus(port, bauds[0], latency_timer_s=timeout_ms / 1000.0,
+              return_delay_s=MAX_RETURN_DELAY_S)
+
+    def progress(line: str) -> None:
+        print(line, file=err, flush=True)
+
+    def found_one(servo: FoundServo) -> None:
+        print(describe(servo), file=out, flush=True)
+
+    try:
+        result = scan_bus(bus, bauds, args.ids, progress, found_one)
+    except PortError as exc:
+        print(f'scan: error: {exc}', file=err)
+        return EXIT_PORT
+    except KeyboardInterrupt:
+        print('scan: interrupted', file=err)
+        return EXIT_INTERRUPTED
+    finally:
+        bus.close()
+    for warning in result.warnings:
+        print(f'scan: warning: {warning}', file=err)
+    tried = ', '.join(str(b) for b in result.bauds_tried) or 'none'
+    if not result.servos:
+        what = 'a broadcast ping' if args.ids is None else (
+            'pings of id(s) ' + ' '.join(str(i) for i in args.ids))
+        print(f'scan: no servo answered on {args.port} ({what} at {tried} bps).\n{HINT}',
+              file=err)
+        return EXIT_NOT_FOUND
+    print(f'scan: found {_plural(len(result.servos), "servo")} (tried {tried} bps)', file=err)
+    _report_bauds(result.servos, err)
+    if args.output is not None:
+        return _output(args, result, latency_ms, err)
+    return EXIT_OK
+
+
+if __name__ == '__main__':
+    sys.exit(main())

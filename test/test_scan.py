@@ -1,0 +1,352 @@
+"""`scan` against virtual_bus subprocesses on pseudo-terminals, and its pure helpers."""
+
+import os
+import pathlib
+import queue
+import signal
+import subprocess
+import sys
+import threading
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
+
+from dxl_servo_driver import config, scan
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.bus import Bus, BusError, open_port
+import pytest
+import yaml
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+LINE_TIMEOUT_S = 10.0  # generous: a busy machine may be slow to start Python
+# Tests that expect replies give each one plenty of time: a loaded machine may not schedule the
+# virtual_bus process at once. Nothing here measures time.
+SLOW_MACHINE_TIMEOUT_MS = '200'
+XM430_LINE = 'id {id}: model 1030 (XM430-class), firmware 45, {baud} bps, mode {mode}, ' \
+             'hardware errors: {errors}'
+
+
+class VirtualBus:
+    """A virtual_bus subprocess: its device (via a link), its control lines."""
+
+    def __init__(self, ids: List[int], baud_bps: int, link: pathlib.Path) -> None:
+        self.link = link
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus', '--ids',
+             *[str(i) for i in ids], '--baud', str(baud_bps), '--link', str(link)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=str(ROOT))
+        self._lines: 'queue.Queue[Optional[str]]' = queue.Queue()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        device = self._lines.get(timeout=LINE_TIMEOUT_S)
+        assert device is not None and device.startswith('/dev/'), device
+        assert os.readlink(link) == device
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self._lines.put(line.rstrip('\n'))
+        self._lines.put(None)
+
+    def command(self, text: str) -> Optional[str]:
+        """Send one control line; return its answer."""
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(text + '\n')
+        self.proc.stdin.flush()
+        return self._lines.get(timeout=LINE_TIMEOUT_S)
+
+    def stop(self) -> None:
+        """Stop and reap the process, close its pipes, remove the link if still there."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stderr):
+            if stream is not None:
+                stream.close()
+        self._reader.join(timeout=5.0)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if os.path.islink(self.link):
+            os.unlink(self.link)
+
+
+Starter = Callable[[List[int], int], VirtualBus]
+
+
+@pytest.fixture
+def start(tmp_path: pathlib.Path) -> Iterator[Starter]:
+    """Start virtual_bus instances; all are stopped, and their links removed, at the end."""
+    started: List[VirtualBus] = []
+
+    def _start(ids: List[int], baud_bps: int) -> VirtualBus:
+        vb = VirtualBus(ids, baud_bps, tmp_path / f'ttyDXL{len(started)}')
+        started.append(vb)
+        return vb
+
+    yield _start
+    for vb in started:
+        vb.stop()
+
+
+def run_scan(capsys: pytest.CaptureFixture, *args: str) -> Tuple[int, List[str], List[str]]:
+    """Run scan.main in this process; return (status, stdout lines, stderr lines)."""
+    status = scan.main(list(args))
+    captured = capsys.readouterr()
+    return status, captured.out.splitlines(), captured.err.splitlines()
+
+
+def with_bus(device: str, baud_bps: int, action: Callable[[Bus], Any]) -> Any:
+    """Open the pty through the driver's Bus, run action, close it (scan needs it free)."""
+    port = open_port(device, baud_bps)
+    try:
+        return action(Bus(port, baud_bps, latency_timer_s=0.2))
+    finally:
+        port.close()
+
+
+def retried(call: Callable[[], Any], attempts: int = 5) -> Any:
+    """Run a bus transaction, again on a failure (a busy machine may answer late)."""
+    for attempt in range(attempts):
+        try:
+            return call()
+        except BusError:
+            if attempt == attempts - 1:
+                raise
+    raise AssertionError('unreachable')
+
+
+def flatten(document: Dict[str, Any]) -> Dict[str, Any]:
+    """Return the flat parameters (`joint.id`) of a `/**: ros__parameters:` document."""
+    flat: Dict[str, Any] = {}
+
+    def walk(prefix: str, node: Dict[str, Any]) -> None:
+        for key, value in node.items():
+            if isinstance(value, dict):
+                walk(f'{prefix}{key}.', value)
+            else:
+                flat[prefix + key] = value
+
+    walk('', document['/**']['ros__parameters'])
+    return flat
+
+
+# ---- against virtual_bus ------------------------------------------------------------------------
+def test_servos_at_57600_are_found_with_every_field(start: Starter,
+                                                    capsys: pytest.CaptureFixture) -> None:
+    vb = start([1, 2], 57600)
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK
+    assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
+                   XM430_LINE.format(id=2, baud=57600, mode='position', errors='none')]
+    assert 'scanning 57600 bps (broadcast ping) ...' in err
+    assert any('found 2 servos' in line for line in err)
+
+
+def test_an_injected_hardware_error_is_shown_decoded(start: Starter,
+                                                     capsys: pytest.CaptureFixture) -> None:
+    vb = start([1, 2], 57600)
+    answer = vb.command('error 2 overload')
+    assert answer is not None and answer.startswith('ok'), answer
+    status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
+                              '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK
+    assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
+                   XM430_LINE.format(id=2, baud=57600, mode='position',
+                                     errors='overload (0x20)')]
+
+
+def test_ids_restrict_the_scan_to_those_ids_at_every_baud(start: Starter,
+                                                          capsys: pytest.CaptureFixture) -> None:
+    vb = start([1, 2, 3], 57600)
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--ids', '3', '1', '99',
+                                '--protocol-timeout-ms', '100')
+    assert status == scan.EXIT_OK
+    assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
+                   XM430_LINE.format(id=3, baud=57600, mode='position', errors='none')]
+    progress = [line for line in err if line.startswith('scanning')]
+    assert progress == [f'scanning {b} bps (ping of 3 id(s)) ...' for b in scan.default_bauds()]
+
+
+def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
+        start: Starter, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path) -> None:
+    vb = start([1, 2, 3], 57600)
+    device = os.readlink(vb.link)
+    mode = ct.BY_NAME['operating_mode']
+    baud = ct.BY_NAME['baud_rate']
+
+    def prepare(bus: Bus) -> None:
+        retried(lambda: bus.write_item(3, mode, ct.OPERATING_MODES['velocity']))
+        try:
+            # The servo switches baud on this write; its status may not arrive at the old one.
+            bus.write_item(2, baud, 3)   # raw 3 = 1 Mbps
+        except BusError:
+            pass
+
+    with_bus(device, 57600, prepare)
+    assert with_bus(device, 1_000_000, lambda bus: retried(lambda: bus.ping(2))) == 1030
+    output = tmp_path / 'found.yaml'
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--output', str(output),
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK
+    assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
+                   XM430_LINE.format(id=3, baud=57600, mode='velocity', errors='none'),
+                   XM430_LINE.format(id=2, baud=1000000, mode='position', errors='none')]
+    progress = [line for line in err if line.startswith('scanning')]
+    assert progress == [f'scanning {b} bps (broadcast ping) ...' for b in scan.default_bauds()]
+    assert any('different baud rates' in line and '1 servo at 1000000 bps' in line
+               for line in err)
+    text = output.read_text()
+    assert 'id 2 answered at 1000000 bps' in text
+    parsed = config.validate(flatten(yaml.safe_load(text)))
+    assert parsed.port == str(vb.link)
+    assert parsed.baud_rate == 57600
+    assert [(j.name, j.servo_id, j.operating_mode) for j in parsed.joints] == [
+        ('joint_1', 1, 'position'), ('joint_3', 3, 'velocity')]
+
+
+def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest.CaptureFixture,
+                                                  tmp_path: pathlib.Path) -> None:
+    vb = start([4, 9], 1_000_000)
+    mode = ct.BY_NAME['operating_mode']
+    with_bus(os.readlink(vb.link), 1_000_000, lambda bus: retried(
+        lambda: bus.write_item(9, mode, ct.OPERATING_MODES['current_based_position'])))
+    output = tmp_path / 'bus.yaml'
+    status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '1000000', '--output',
+                              str(output), '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK
+    assert len(out) == 2
+    flat = flatten(yaml.safe_load(output.read_text()))
+    assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'joints': ['joint_4', 'joint_9'],
+                    'joint_4.id': 4, 'joint_4.operating_mode': 'position',
+                    'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position'}
+    parsed = config.validate(flat)
+    assert parsed.joint('joint_9').operating_mode == 'current_based_position'
+    assert not list(tmp_path.glob('bus.yaml.tmp*'))
+
+
+@pytest.mark.parametrize('extra, what', [
+    (['--baud', '115200', '1000000'], 'a broadcast ping at 115200, 1000000 bps'),
+    (['--ids', '1', '2', '--baud', '57600'], 'pings of id(s) 1 2 at 57600 bps'),
+])
+def test_nothing_found_exits_non_zero_with_the_usual_causes(
+        start: Starter, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path,
+        extra: List[str], what: str) -> None:
+    vb = start([7], 57600)
+    output = tmp_path / 'never.yaml'
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--output', str(output), *extra)
+    assert status == scan.EXIT_NOT_FOUND
+    assert out == []
+    text = '\n'.join(err)
+    assert f'no servo answered on {vb.link} ({what})' in text
+    for cause in ('power', 'baud rate', 'Protocol 1.0', 'latency timer', 'udev'):
+        assert cause in text
+    assert not output.exists()
+
+
+# ---- port and argument errors -------------------------------------------------------------------
+def test_a_missing_port_gives_one_clear_line(capsys: pytest.CaptureFixture,
+                                             tmp_path: pathlib.Path) -> None:
+    missing = tmp_path / 'ttyUSB9'
+    status, out, err = run_scan(capsys, '--port', str(missing))
+    assert status == scan.EXIT_PORT
+    assert out == []
+    assert len(err) == 1
+    assert err[0].startswith(f'scan: error: port {missing} does not exist')
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason='root opens any device')
+def test_permission_denied_says_how_to_fix_it(capsys: pytest.CaptureFixture) -> None:
+    master, slave = os.openpty()
+    try:
+        device = os.ttyname(slave)
+        os.chmod(device, 0)
+        status, _, err = run_scan(capsys, '--port', device, '--baud', '57600')
+    finally:
+        os.close(slave)
+        os.close(master)
+    assert status == scan.EXIT_PORT
+    assert len(err) == 1 and 'permission denied' in err[0] and 'dialout' in err[0]
+
+
+@pytest.mark.parametrize('args, message', [
+    ([], 'the following arguments are required: --port'),
+    (['--port', '/dev/ttyX', '--baud', '1234'], '--baud 1234: the servo supports'),
+    (['--port', '/dev/ttyX', '--baud', 'fast'], "invalid int value: 'fast'"),
+    (['--port', '/dev/ttyX', '--ids', '253'], '--ids 253: ids are 0..252'),
+    (['--port', '/dev/ttyX', '--protocol-timeout-ms', '0'], '--protocol-timeout-ms must be'),
+    (['--port', '/dev/ttyX', '--protocol-timeout-ms', 'nan'], '--protocol-timeout-ms must be'),
+    (['--port', '/dev/ttyX', '--output', '/no/such/folder/f.yaml'], 'does not exist'),
+    (['--port', '/dev/ttyX', '--frobnicate'], 'unrecognized arguments: --frobnicate'),
+])
+def test_bad_arguments_exit_2_with_one_line(capsys: pytest.CaptureFixture, args: List[str],
+                                            message: str) -> None:
+    status, out, err = run_scan(capsys, *args)
+    assert status == scan.EXIT_USAGE
+    assert out == []
+    assert len(err) == 1 and err[0].startswith('scan: error: ') and message in err[0], err
+
+
+def test_help_exits_0(capsys: pytest.CaptureFixture) -> None:
+    status, out, _ = run_scan(capsys, '--help')
+    assert status == 0
+    assert any('--protocol-timeout-ms' in line for line in out)
+
+
+# ---- pure helpers -------------------------------------------------------------------------------
+def test_default_bauds_are_the_whole_table_most_common_first() -> None:
+    bauds = scan.default_bauds()
+    assert bauds[:2] == [57600, 1000000]
+    assert bauds[-1] == 9600   # slowest broadcast ping last
+    assert sorted(bauds) == sorted(ct.BAUD_RATES.values())
+
+
+def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optional[int] = 3,
+          errors: Optional[int] = 0, firmware: Optional[int] = 45) -> scan.FoundServo:
+    """Return a FoundServo as scan_bus would build it."""
+    return scan.FoundServo(servo_id, baud_bps, model, firmware, mode, errors)
+
+
+def test_describe_says_what_could_not_be_read() -> None:
+    assert scan.describe(servo(5, model=1200, mode=None, errors=None, firmware=44)) == (
+        'id 5: model 1200 (unknown model), firmware 44, 57600 bps, '
+        'mode not read (unknown control table), hardware errors: not read')
+    assert scan.describe(servo(6, mode=None, errors=None, firmware=None)) == (
+        'id 6: model 1030 (XM430-class), firmware ? (no reply), 57600 bps, mode ? (no reply), '
+        'hardware errors: ? (no reply)')
+    assert scan.describe(servo(7, mode=2, errors=0x24)).endswith(
+        'mode 2 (not a valid mode), hardware errors: overheating, overload (0x24)')
+    assert scan.describe(servo(8, errors=0x40)).endswith('hardware errors: unnamed bits (0x40)')
+
+
+def test_the_baud_with_most_servos_wins_and_a_tie_goes_to_the_first_scanned() -> None:
+    assert scan.choose_baud([servo(1, 1000000), servo(2, 57600), servo(3, 57600)]) == 57600
+    assert scan.choose_baud([servo(1, 1000000), servo(2, 57600)]) == 1000000
+
+
+def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
+    found = [servo(1), servo(2, model=1200), servo(3, mode=2), servo(4, mode=None),
+             servo(5, 1000000), servo(6, mode=16)]
+    params, comments = scan.build_parameters('/dev/ttyDXL', found, latency_timer_ms=1.0)
+    assert params['joints'] == ['joint_1', 'joint_6']
+    assert params['joint_6.operating_mode'] == 'pwm'
+    assert params['latency_timer'] == 1.0
+    text = '\n'.join(comments)
+    for servo_id in (2, 3, 4, 5):
+        assert f'  id {servo_id}' in text
+    assert 'set its baud_rate register to 1 (57600 bps)' in text
+    with pytest.raises(ValueError, match='no servo the node could drive'):
+        scan.build_parameters('/dev/ttyDXL', [servo(2, model=1200)])
+    with pytest.raises(ValueError, match='no servo found'):
+        scan.build_parameters('/dev/ttyDXL', [])
+
+
+def test_the_rendered_file_parses_back_to_the_same_parameters() -> None:
+    port = "/dev/serial/by-id/usb-FTDI_it's #1: U2D2"   # quote, hash, colon and spaces
+    params, comments = scan.build_parameters(port, [servo(12, mode=1), servo(3, mode=4)], 16.0)
+    text = scan.render_parameter_file(params, comments, 'header')
+    assert flatten(yaml.safe_load(text)) == params
+    assert config.validate(params).joint('joint_12').operating_mode == 'velocity'
