@@ -27,6 +27,7 @@ setup(
     entry_points={
         'console_scripts': [
             'node = dxl_servo_driver.node:main',
+            'scan = dxl_servo_driver.scan:main',
             'virtual_bus = dxl_servo_driver.sim.virtual_bus:main',
         ],
     },

@@ -122,6 +122,10 @@ class SerialPort:
     @baudrate.setter
     def baudrate(self, baud_bps: int) -> None:
         self._serial.baudrate = baud_bps
+        # The cached attributes carry the speed: take them again, or the next VMIN change
+        # would put the old speed back.
+        self._attrs = termios.tcgetattr(self._fd)
+        self._vmin = -1
 
     def write(self, data: bytes) -> int:
         """Send all bytes; PortError when the device is gone."""
@@ -176,7 +180,17 @@ class SerialPort:
                 except OSError as exc:
                     raise PortError(f'{self.device}: read failed ({exc.strerror}); '
                                     'was the adapter unplugged?') from None
-            if len(chunks) >= size or remaining_ms <= 0.0:
+            if len(chunks) >= size:
+                return bytes(chunks)
+            if remaining_ms <= 0.0:
+                # Fewer than VMIN bytes never wake poll(): take whatever is there now.
+                try:
+                    chunks += os.read(fd, size - len(chunks))
+                except BlockingIOError:
+                    pass
+                except OSError as exc:
+                    raise PortError(f'{self.device}: read failed ({exc.strerror}); '
+                                    'was the adapter unplugged?') from None
                 return bytes(chunks)
 
     def reset_input_buffer(self) -> None:

@@ -45,7 +45,7 @@ def test_services_have_the_spec_fields(name: str, request_fields: dict,
 def test_console_scripts_are_where_ros2_run_looks() -> None:
     from ament_index_python.packages import get_package_prefix
     lib = pathlib.Path(get_package_prefix('dxl_servo_driver')) / 'lib' / 'dxl_servo_driver'
-    for exe in ('virtual_bus',):
+    for exe in ('node', 'virtual_bus', 'scan'):
         assert os.access(lib / exe, os.X_OK), f'{lib / exe} is not an executable'
 
 
