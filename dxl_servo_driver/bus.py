@@ -73,6 +73,7 @@ class RawPort(Protocol):
     """The byte-level port the bus needs (a serial device or the simulator's in-process port)."""
 
     baudrate: int
+    in_waiting: int
 
     def write(self, data: bytes) -> int:
         """Send bytes."""
@@ -193,6 +194,14 @@ class SerialPort:
                                     'was the adapter unplugged?') from None
                 return bytes(chunks)
 
+    @property
+    def in_waiting(self) -> int:
+        """Return how many received bytes wait to be read."""
+        try:
+            return int(self._serial.in_waiting)
+        except (OSError, serial.SerialException) as exc:
+            raise PortError(f'{self.device}: {exc}') from None
+
     def reset_input_buffer(self) -> None:
         """Drop unread input."""
         try:
@@ -253,10 +262,9 @@ class _SdkPort:
         return self._bus.port.write(bytes(packet))
 
     def readPort(self, length: int) -> bytes:  # noqa: N802
-        remaining = self._deadline - time.monotonic()
-        if length <= 0 or remaining <= 0:
+        if length <= 0:
             return b''
-        return self._bus.port.read(length, remaining)
+        return self._bus.port.read(length, max(0.0, self._deadline - time.monotonic()))
 
     def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802
         self._deadline = time.monotonic() + self._bus.reply_timeout_s(packet_length)
@@ -265,7 +273,9 @@ class _SdkPort:
         self._deadline = time.monotonic() + msec / 1000.0
 
     def isPacketTimeout(self) -> bool:  # noqa: N802
-        return time.monotonic() > self._deadline
+        # The SDK asks this before reading the rest of a packet; bytes already waiting mean
+        # the reply did arrive (this thread was just late), not that it timed out.
+        return time.monotonic() > self._deadline and not self._bus.port.in_waiting
 
 
 SyncResult = Dict[int, Union[bytes, BusError]]
@@ -425,9 +435,10 @@ class Bus:
                                                                    len(packet))
                 buffer = port.read(expected, deadline - time.monotonic())
                 results = self._parse_sync(buffer, id_tuple, length)
-                while len(results) < len(id_tuple) and time.monotonic() < deadline:
-                    # Byte stuffing or a bad packet made the replies longer: read the rest.
-                    more = port.read(reply_size, deadline - time.monotonic())
+                while len(results) < len(id_tuple):
+                    # Byte stuffing or a bad packet made the replies longer, or this thread
+                    # was late: read the rest (past the deadline, only what already arrived).
+                    more = port.read(reply_size, max(0.0, deadline - time.monotonic()))
                     if not more:
                         break
                     buffer += more

@@ -66,6 +66,14 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('missing_servo', str, 'refuse',
               'A configured servo that does not answer at configure: refuse to start, or skip it '
               'and start without it.', choices=MISSING_SERVO_POLICIES),
+    ParamSpec('read_retries', int, 1,
+              'A servo whose reply was lost or corrupted is read again on its own this many times '
+              'within the cycle, while the cycle has time left.', '', 0, 5),
+    ParamSpec('hardware_error_recovery', bool, False,
+              'On a latched hardware error (overload, overheating, ...), reboot that servo alone '
+              'and restore its configuration and torque. Off: report it and leave it to you.'),
+    ParamSpec('recovery_interval', float, 5.0,
+              'Minimum time between two recovery reboots of the same servo.', 's', 0.1, 3600.0),
     ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
               0.0, 100.0),
     ParamSpec('temperature_error', float, 78.0, 'Diagnostics ERROR above this temperature.',
@@ -111,6 +119,9 @@ class DriverConfig:
     latency_timer: float = 16.0
     ping_retries: int = 3
     missing_servo: str = 'refuse'
+    read_retries: int = 1
+    hardware_error_recovery: bool = False
+    recovery_interval: float = 5.0
     temperature_warn: float = 70.0
     temperature_error: float = 78.0
     voltage_low: float = 10.0

@@ -34,6 +34,9 @@ IDX_HW_ERROR = _I['hardware_error_status']
 IDX_TORQUE = _I['torque_enable']
 IDX_CANARY = BLOCK.canary_index
 WARN_INTERVAL_S = 2.0
+STATUS_BYTES = 11   # status packet overhead
+READ_BYTES = 14     # a READ instruction packet
+TURN_PULSES = 4096
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.MOTION_FIELDS)
 
 
@@ -62,6 +65,8 @@ class Servo:
     timed_out: bool = False
     limits: Dict[str, int] = field(default_factory=dict)
     restarts: int = 0
+    recoveries: int = 0
+    last_recovery_s: float = -1e9
 
     @property
     def name(self) -> str:
@@ -147,6 +152,14 @@ class Manager:
         self._pending: Dict[str, Dict[int, int]] = {}   # register -> {servo id: raw goal}
         self.cycles = 0
         self.read_failures = 0
+        self.retries = 0
+        self.retry_successes = 0
+        self.recoveries = 0
+        # Port loss: the cycle stops reading, the node stays up, reconnection is tried.
+        self.port_lost = False
+        self.port_error = ''
+        self.reconnect_interval_s = 1.0
+        self._next_reconnect_s = 0.0
         self.last_read_time = 0.0
         # How often the whole state block (health part too) is read; the node sets it from
         # state_rate and the 1 Hz diagnostics.
@@ -345,14 +358,17 @@ class Manager:
             self.bus = None
 
     # the cycle ----------------------------------------------------------------------------
-    def read_states(self, full: Optional[bool] = None) -> float:
+    def read_states(self, full: Optional[bool] = None,
+                    retry_until: Optional[float] = None) -> float:
         """
         Read every servo's state with one sync read; return the read's monotonic time.
 
         The motion part of the block is read every cycle; the whole block (health too) when
         `full`, or by default every health_period_s, when a servo raised its alert bit, or when
-        a servo has no health values yet. A servo that does not answer well keeps fresh False:
-        it is left out of what is published.
+        a servo has no health values yet. A servo whose reply was lost or corrupted is read again
+        on its own (read_retries times) while the clock is before retry_until (the cycle's
+        budget). A servo that still does not answer well keeps fresh False: it is left out of
+        what is published, never given a stale or invented value.
         """
         with self.lock:
             assert self.bus is not None
@@ -363,6 +379,8 @@ class Manager:
                         or self._need_full)
             length = BLOCK.size if full else BLOCK.motion_size
             results = self.bus.sync_read(BLOCK.read_address, length, self._id_list)
+            if retry_until is not None and self.config.read_retries:
+                self._retry_failed(results, length, retry_until)
             self._need_full = False
             if full:
                 self._last_full_s = stamp
@@ -401,6 +419,25 @@ class Manager:
             self.last_read_time = stamp
             return stamp
 
+    def _retry_failed(self, results: Dict[int, Any], length: int, until: float) -> None:
+        assert self.bus is not None
+        one_read_s = self.bus.reply_timeout_s(STATUS_BYTES + length, 1, READ_BYTES)
+        for servo_id, data in results.items():
+            if isinstance(data, bytes) or isinstance(data, StatusError):
+                continue   # a status error is the servo's answer: asking again changes nothing
+            for _ in range(self.config.read_retries):
+                if self._clock() + one_read_s > until:
+                    return
+                self.retries += 1
+                try:
+                    results[servo_id] = self.bus.read(servo_id, BLOCK.read_address, length)
+                    self.retry_successes += 1
+                    break
+                except PortError:
+                    raise
+                except BusError as exc:
+                    results[servo_id] = exc
+
     def _recover_restart(self, servo: Servo) -> None:
         """Give a servo that restarted on its own (power cut, brown-out) its setup back."""
         servo.restarts += 1
@@ -408,15 +445,48 @@ class Manager:
         self.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
                   'restoring its configuration, mode and torque')
         try:
-            self._restore(servo)
+            self._restore(servo, last_position=self._last_position(servo))
+        except PortError:
+            raise
         except BusError as exc:
             self.warn_throttled(f'restore:{servo.name}',
                                 f'joint {servo.name!r}: restore after restart failed: {exc}')
 
-    def _restore(self, servo: Servo, hold_last_goal: bool = True) -> None:
+    @staticmethod
+    def _last_position(servo: Servo) -> Optional[int]:
+        return servo.state[IDX_POSITION] if servo.state is not None else None
+
+    def _keep_turns(self, servo: Servo, last_position: int) -> None:
+        """
+        Keep the multi-turn position continuous across a reboot.
+
+        A reboot re-initialises Present Position within one turn (the seed); adding the lost
+        whole turns to the Homing Offset (EEPROM, torque is off here) puts the count back where
+        it was. It assumes the horn moved less than half a turn while the servo was down.
+        """
+        assert self.bus is not None
+        sid = servo.servo_id
+        present = self.bus.read_item(sid, ct.BY_NAME['present_position'])
+        turns = int(round((last_position - present) / TURN_PULSES))
+        if not turns:
+            return
+        offset = self.bus.read_item(sid, ct.BY_NAME['homing_offset'])
+        wanted = offset + turns * TURN_PULSES
+        if abs(wanted) > ct.HOMING_OFFSET_LIMIT:
+            self.warn(f'joint {servo.name!r}: cannot keep its position across the reboot: '
+                      f'{turns} turns exceed the homing offset range')
+            return
+        self._write_verified(servo, 'homing_offset', wanted)
+        self.info(f'joint {servo.name!r}: position kept continuous across the reboot '
+                  f'({turns:+d} turns via homing_offset {wanted})')
+
+    def _restore(self, servo: Servo, hold_last_goal: bool = True,
+                 last_position: Optional[int] = None) -> None:
         """Restore configuration, mode, goal and torque after a reboot."""
         assert self.bus is not None
         self._apply_configuration(servo)
+        if last_position is not None and servo.mode != 'position':
+            self._keep_turns(servo, last_position)
         goal = servo.goal_raw.get('goal_position')
         self._hold_and_enable(servo)
         if (hold_last_goal and servo.torque_wanted and servo.mode in model.POSITION_MODES
@@ -427,6 +497,101 @@ class Manager:
                 goal = min(max(goal, servo.limits['min_position_limit']),
                            servo.limits['max_position_limit'])
             self._write_goal(servo, 'goal_position', goal)
+
+    def recover_hardware_errors(self) -> None:
+        """With hardware_error_recovery: reboot a faulty servo alone, rate-limited, restored."""
+        if not self.config.hardware_error_recovery:
+            return
+        with self.lock:
+            now = self._clock()
+            for servo in self.active_servos():
+                state = servo.state
+                if not servo.health_time or state is None or not state[IDX_HW_ERROR]:
+                    continue
+                if now - servo.last_recovery_s < self.config.recovery_interval:
+                    continue
+                servo.last_recovery_s = now
+                servo.recoveries += 1
+                self.recoveries += 1
+                errors = ', '.join(ct.decode_hardware_errors(state[IDX_HW_ERROR]))
+                self.warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
+                          f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
+                try:
+                    self._reboot_and_restore(servo)
+                except PortError:
+                    raise
+                except BusError as exc:
+                    self.warn(f'joint {servo.name!r}: recovery failed: {exc}')
+                    continue
+                servo.health_time = 0.0
+                self.info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+
+    # port loss ------------------------------------------------------------------------------
+    def cycle_read(self, retry_until: Optional[float] = None) -> bool:
+        """Read states unless the port is lost; False when nothing was read this cycle."""
+        with self.lock:
+            if self.port_lost and not self._reconnect():
+                return False
+            try:
+                self.read_states(retry_until=retry_until)
+            except PortError as exc:
+                self._lose_port(exc)
+                return False
+            return True
+
+    def cycle_write(self) -> None:
+        """Command timeouts, pending goals, hardware-error recovery; port loss handled."""
+        with self.lock:
+            if self.port_lost:
+                return
+            try:
+                self.check_command_timeout()
+                self.write_pending()
+                self.recover_hardware_errors()
+            except PortError as exc:
+                self._lose_port(exc)
+
+    def _lose_port(self, exc: BusError) -> None:
+        self.port_lost = True
+        self.port_error = str(exc)
+        self._pending.clear()
+        for servo in self.order:
+            servo.fresh = False
+        self.error(f'{self.config.port}: {exc}. The node stays up and reconnects when the '
+                   'device returns.')
+        if self.sim_bus is None and self.bus is not None:
+            self.bus.close()
+        self._next_reconnect_s = self._clock() + self.reconnect_interval_s
+
+    def _reconnect(self) -> bool:
+        """Try to get the port and the servos back; True when done."""
+        now = self._clock()
+        if now < self._next_reconnect_s:
+            return False
+        self._next_reconnect_s = now + self.reconnect_interval_s
+        assert self.bus is not None
+        try:
+            if self.sim_bus is None:
+                # A real adapter comes back as a new device: open it again.
+                self.port, _ = self._port_factory(self.config)
+                self.bus.port = self.port
+            for servo in self.active_servos():
+                self.bus.ping(servo.servo_id)
+            results = self.bus.sync_read(BLOCK.read_address, BLOCK.size, self._id_list)
+            for servo, servo_id in self._ids_cache:
+                data = results.get(servo_id)
+                if isinstance(data, bytes) and BLOCK.decode(data)[IDX_CANARY] != 0:
+                    continue   # kept its power and its setup: leave it as it is
+                # It lost power with the adapter: setup, hold where it is, torque back.
+                self._restore(servo, hold_last_goal=False,
+                              last_position=self._last_position(servo))
+        except (BusError, OSError):
+            return False
+        self.port_lost = False
+        self.port_error = ''
+        self._need_full = True
+        self.info(f'{self.config.port}: port back, {len(self.active_servos())} servos restored')
+        return True
 
     def write_pending(self) -> int:
         """Write the goals queued since the last cycle: one sync write per register."""
@@ -619,13 +784,26 @@ class Manager:
                 return Result(False, reason)
             try:
                 for servo in servos:
-                    self._pending_drop(servo)
-                    self.bus.reboot(servo.servo_id)
-                    self._wait_for_boot(servo)
-                    self._restore(servo, hold_last_goal=False)
+                    self._reboot_and_restore(servo)
             except BusError as exc:
                 return Result(False, f'reboot failed: {exc}')
             return Result(True, f'rebooted and restored {", ".join(s.name for s in servos)}')
+
+    def _reboot_and_restore(self, servo: Servo) -> None:
+        """REBOOT one servo, wait for it, give it its setup back holding where it is."""
+        assert self.bus is not None
+        self._pending_drop(servo)
+        last = self._last_position(servo)
+        try:
+            last = self.bus.read_item(servo.servo_id, ct.BY_NAME['present_position'])
+        except PortError:
+            raise
+        except BusError:
+            pass   # a servo in trouble may not answer reads: the last good state will do
+        self.bus.reboot(servo.servo_id)
+        self._wait_for_boot(servo)
+        self._restore(servo, hold_last_goal=False, last_position=last)
+        self._need_full = True
 
     def _wait_for_boot(self, servo: Servo, timeout_s: float = 3.0) -> None:
         assert self.bus is not None

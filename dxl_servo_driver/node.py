@@ -41,7 +41,11 @@ _PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER
 
 
 class StartupFailure(Exception):
-    """The node cannot start; the message says why, in one line."""
+    """The node cannot start; the message says why, in one line (or it was logged already)."""
+
+    def __init__(self, message: str, logged: bool = False) -> None:
+        super().__init__(message)
+        self.logged = logged
 
 
 class RateMeter:
@@ -107,6 +111,7 @@ class DriverNode(LifecycleNode):
         self._last_state_s = 0.0
         self._last_diag_s = 0.0
         self._joint_state = JointState()
+        self._bus_cycle_s = 0.0
         assert (IDX_POSITION, IDX_VELOCITY, IDX_CURRENT) == (0, 1, 2)
         # (servo, joint name, N*m per current unit) per joint, in joint_states order.
         self._joint_table = [
@@ -216,6 +221,7 @@ class DriverNode(LifecycleNode):
         """Goal = present, torque on, start the cycle."""
         try:
             self.manager.activate()
+            self._bus_cycle_s = self.manager.bus_budget().cycle_time_s
         except ManagerError as exc:
             self.get_logger().error(str(exc))
             return TransitionCallbackReturn.FAILURE
@@ -264,10 +270,11 @@ class DriverNode(LifecycleNode):
         if not self.config.autostart:
             self.get_logger().info('autostart is false: waiting for lifecycle transitions')
             return
+        # on_configure / on_activate logged the reason: one clear line, not two.
         if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-            raise StartupFailure('configure failed (see the error above)')
+            raise StartupFailure('configure failed', logged=True)
         if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
-            raise StartupFailure('activate failed (see the error above)')
+            raise StartupFailure('activate failed', logged=True)
 
     # the cycle -----------------------------------------------------------------------------
     def _run(self) -> None:
@@ -293,11 +300,14 @@ class DriverNode(LifecycleNode):
                 next_s = time.monotonic()
 
     def _cycle(self) -> None:
+        start = time.monotonic()
         stamp = self.get_clock().now().to_msg()
-        self.manager.read_states()
-        self._publish_joint_states(stamp)
-        self.manager.check_command_timeout()
-        self.manager.write_pending()
+        # Lost or corrupted replies are read again while the cycle has time (or twice the bus
+        # time when the loop runs as fast as the bus allows).
+        retry_until = start + max(0.9 * self._loop_period_s, 2.0 * self._bus_cycle_s)
+        if self.manager.cycle_read(retry_until):
+            self._publish_joint_states(stamp)
+        self.manager.cycle_write()
         now = time.monotonic()
         if self._state_period_s and now - self._last_state_s >= self._state_period_s:
             self._last_state_s = now
@@ -342,7 +352,8 @@ class DriverNode(LifecycleNode):
         msg.operating_mode = servo.mode
         msg.comm_errors = min(servo.comm_errors, 2 ** 32 - 1)
         state = servo.state
-        if state is None:
+        if state is None or not servo.fresh:
+            # Not answering: no stale values here either (comm_errors says why).
             for attr in ('position', 'velocity', 'current', 'pwm', 'input_voltage',
                          'temperature'):
                 setattr(msg, attr, math.nan)
@@ -376,14 +387,19 @@ class DriverNode(LifecycleNode):
         array.header.stamp = stamp
         budget = manager.bus_budget()
         measured = self._rate.rate_hz
-        bus_status = DiagnosticStatus(name=f'{self.get_name()}: bus {self.config.port}',
+        node_name = self.get_fully_qualified_name()
+        bus_status = DiagnosticStatus(name=f'{node_name}: bus {self.config.port}',
                                       hardware_id=self.config.port)
         bus_status.level = DiagnosticStatus.OK
         bus_status.message = f'{measured:.0f} Hz'
-        if measured < 0.9 * min(self.config.loop_rate, budget.rate_limit_hz):
+        requested = 1.0 / self._loop_period_s
+        if manager.port_lost:
+            bus_status.level = DiagnosticStatus.ERROR
+            bus_status.message = f'port lost, reconnecting: {manager.port_error}'
+        elif measured < 0.9 * min(requested, budget.rate_limit_hz):
             bus_status.level = DiagnosticStatus.WARN
-            bus_status.message = (f'{measured:.0f} Hz, below the requested '
-                                  f'{self.config.loop_rate:g} Hz')
+            bus_status.message = (f'{measured:.0f} Hz, below the requested {requested:g} Hz '
+                                  f'(bus limit {budget.rate_limit_hz:.0f} Hz)')
         values = {
             'port': self.config.port, 'baud_rate': self.config.baud_rate,
             'loop_rate_requested_hz': f'{1.0 / self._loop_period_s:g}',
@@ -392,6 +408,8 @@ class DriverNode(LifecycleNode):
             'cycles': manager.cycles, 'read_failures': manager.read_failures,
             'timeouts': bus.timeouts if bus else 0, 'corrupt_replies': bus.corrupt if bus else 0,
             'status_errors': bus.status_errors if bus else 0,
+            'retries': manager.retries, 'retry_successes': manager.retry_successes,
+            'recoveries': manager.recoveries, 'port_lost': manager.port_lost,
         }
         bus_status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array.status.append(bus_status)
@@ -400,7 +418,7 @@ class DriverNode(LifecycleNode):
         return array
 
     def _servo_diagnostic(self, servo: Servo) -> DiagnosticStatus:
-        status = DiagnosticStatus(name=f'{self.get_name()}: {servo.name}',
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: {servo.name}',
                                   hardware_id=f'{self.config.port} id {servo.servo_id}')
         state = servo.state
         problems: List[str] = []
@@ -413,7 +431,8 @@ class DriverNode(LifecycleNode):
             problems.append('not answering')
         values = {'id': servo.servo_id, 'model_number': servo.model_number,
                   'firmware_version': servo.firmware_version, 'operating_mode': servo.mode,
-                  'comm_errors': servo.comm_errors, 'restarts': servo.restarts}
+                  'comm_errors': servo.comm_errors, 'restarts': servo.restarts,
+                  'recoveries': servo.recoveries}
         if state is not None and servo.health_time:
             temperature = float(state[IDX_TEMPERATURE])
             voltage = model.voltage_to_v(state[IDX_VOLTAGE])
@@ -525,8 +544,9 @@ def main(args: Optional[List[str]] = None) -> int:
         executor.add_node(node)
         executor.spin()
     except StartupFailure as exc:
-        logger = node.get_logger() if node else rclpy.logging.get_logger(NODE_NAME)
-        logger.fatal(str(exc))
+        if not exc.logged:
+            logger = node.get_logger() if node else rclpy.logging.get_logger(NODE_NAME)
+            logger.fatal(str(exc))
         code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
