@@ -11,10 +11,6 @@ setup:
 	@bash tools/setup_env.sh
 
 run: setup
-	@if [ ! -f dxl_servo_driver/node.py ]; then \
-	  echo 'make run: the driver node is not built yet (issue 4); the simulator is there:'; \
-	  echo '  . .venv/bin/activate && . install/setup.bash && virtual_bus --ids 1 2 3'; \
-	  exit 1; fi
 	@$(ENV) exec install/dxl_servo_driver/lib/dxl_servo_driver/node --ros-args --params-file $(PARAMS)
 
 test: setup

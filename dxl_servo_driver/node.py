@@ -112,6 +112,7 @@ class DriverNode(LifecycleNode):
         self._last_diag_s = 0.0
         self._joint_state = JointState()
         self._bus_cycle_s = 0.0
+        self._next_rate_log_s = 0.0
         assert (IDX_POSITION, IDX_VELOCITY, IDX_CURRENT) == (0, 1, 2)
         # (servo, joint name, N*m per current unit) per joint, in joint_states order.
         self._joint_table = [
@@ -263,6 +264,8 @@ class DriverNode(LifecycleNode):
         self._stop_cycle()
         if was_active:
             self.manager.deactivate()
+            torque = 'torque off' if self.config.torque_off_on_shutdown else 'torque left on'
+            self.get_logger().info(f'stopped: {torque}, port {self.config.port} closed')
         self.manager.close()
 
     def start(self) -> None:
@@ -287,6 +290,8 @@ class DriverNode(LifecycleNode):
                 self.get_logger().error(f'cycle failed: {exc}', throttle_duration_sec=2.0)
                 self._stop.wait(0.1)
             self._rate.tick()
+            if time.monotonic() >= self._next_rate_log_s:
+                self._log_rate()
             next_s += self._loop_period_s
             delay = next_s - time.monotonic()
             if delay > 0:
@@ -298,6 +303,18 @@ class DriverNode(LifecycleNode):
                         f'the bus cannot keep loop_rate {1.0 / self._loop_period_s:g} Hz: '
                         'running as fast as it allows (the measured rate is in /diagnostics)')
                 next_s = time.monotonic()
+
+    def _log_rate(self) -> None:
+        # A first report once the rate has settled, then one a minute.
+        first = self._next_rate_log_s == 0.0
+        self._next_rate_log_s = time.monotonic() + (3.0 if first else 60.0)
+        if first:
+            return
+        budget = self.manager.bus_budget()
+        self.get_logger().info(
+            f'measured loop rate {self._rate.rate_hz:.1f} Hz (requested '
+            f'{1.0 / self._loop_period_s:g} Hz, bus limit {budget.rate_limit_hz:.0f} Hz); '
+            f'{self.manager.read_failures} read failures, {self.manager.retries} retries')
 
     def _cycle(self) -> None:
         start = time.monotonic()

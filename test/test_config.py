@@ -105,3 +105,25 @@ def test_every_parameter_has_a_description_and_a_valid_default() -> None:
             assert spec.default in spec.choices, spec.name
         if spec.minimum is not None:
             assert spec.minimum <= spec.default <= spec.maximum, spec.name
+
+
+def flatten(tree: Dict[str, Any], prefix: str = '') -> Dict[str, Any]:
+    flat: Dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(flatten(value, f'{prefix}{key}.'))
+        else:
+            flat[f'{prefix}{key}'] = value
+    return flat
+
+
+@pytest.mark.parametrize('name', ['sim.yaml', 'example.yaml'])
+def test_shipped_parameter_files_are_valid(name: str) -> None:
+    import pathlib
+    import yaml
+    path = pathlib.Path(__file__).resolve().parent.parent / 'config' / name
+    tree = yaml.safe_load(path.read_text())
+    config = validate(flatten(tree['/**']['ros__parameters']))
+    assert len(config.joints) == 3
+    modes = {joint.operating_mode for joint in config.joints}
+    assert len(modes) == 3, 'the shipped files show three different modes'
