@@ -7,6 +7,7 @@ whose lock keeps one transaction on the bus at a time.
 """
 
 import math
+import signal
 import sys
 import threading
 import time
@@ -28,6 +29,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
 NODE_NAME = 'dxl_servo_driver'
@@ -549,9 +551,18 @@ def _replace(config: cfg.DriverConfig, **changes: Any) -> cfg.DriverConfig:
     return dataclasses.replace(config, **changes)
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def main(args: Optional[List[str]] = None) -> int:
-    """Run the driver node until Ctrl-C; non-zero exit when it cannot start."""
-    rclpy.init(args=args)
+    """Run the driver node until Ctrl-C or SIGTERM; non-zero exit when it cannot start."""
+    # Our own signal handling: the context stays valid until the servos are safe, so the
+    # shutdown (torque off, port closed) is done and logged before ROS goes away.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # Set explicitly: a process started in the background inherits SIGINT ignored.
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     node: Optional[DriverNode] = None
     code = 0
     try:
@@ -559,7 +570,8 @@ def main(args: Optional[List[str]] = None) -> int:
         node.start()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.2)
     except StartupFailure as exc:
         if not exc.logged:
             logger = node.get_logger() if node else rclpy.logging.get_logger(NODE_NAME)
