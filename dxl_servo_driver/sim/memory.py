@@ -45,6 +45,11 @@ _INDIRECT_DATA_LOW = min(_INDIRECT_DATA_TO_ADDRESS)
 _STRUCTS: dict[str, struct.Struct] = {
     item.name: struct.Struct(_FORMATS[(item.size, item.signed)]) for item in ITEMS}
 _U16 = struct.Struct('<H')
+# The indirect address registers (bank 1: 168..223, bank 2: 578..633) and bank 2's data.
+_INDIRECT_MAP_LOW, _INDIRECT_MAP_HIGH = indirect_address_address(1), indirect_data_address(1)
+_UPPER_MAP_LOW = indirect_address_address(29)
+_UPPER_MAP_HIGH = indirect_data_address(29)
+_UPPER_BANK_LOW = indirect_data_address(29)
 # name -> (unpack_from, address): get() runs tens of times per servo per millisecond.
 _GETTERS = {item.name: (_STRUCTS[item.name].unpack_from, item.address) for item in ITEMS}
 
@@ -54,6 +59,7 @@ class Memory:
 
     def __init__(self) -> None:
         self._data = bytearray(TABLE_SIZE)
+        self._read_plans: dict[tuple[int, int], tuple[bytes, list[tuple[int, int]]]] = {}
         # The table's bytes, for fast reads of 1-byte items by address (never replaced).
         self.raw = self._data
         self.factory_reset()
@@ -113,13 +119,31 @@ class Memory:
         data = self._data
         if end <= _INDIRECT_DATA_LOW:
             return bytes(data[address:end])
-        out = bytearray(data[address:end])
-        for offset in range(length):
-            mapping = _INDIRECT_DATA_TO_ADDRESS.get(address + offset)
-            if mapping is not None:
+        # A sync read of indirect data runs every cycle: the byte-by-byte resolution is done
+        # once per (address, length, mapping) and kept as runs of consecutive source bytes.
+        mapping = bytes(data[_INDIRECT_MAP_LOW:_INDIRECT_MAP_HIGH])
+        if end > _UPPER_BANK_LOW:
+            mapping += bytes(data[_UPPER_MAP_LOW:_UPPER_MAP_HIGH])
+        key = (address, length)
+        cached = self._read_plans.get(key)
+        if cached is None or cached[0] != mapping:
+            cached = (mapping, self._plan_read(address, end))
+            self._read_plans[key] = cached
+        return b''.join([data[start:stop] for start, stop in cached[1]])
+
+    def _plan_read(self, address: int, end: int) -> list[tuple[int, int]]:
+        data = self._data
+        runs: list[tuple[int, int]] = []
+        for source in range(address, end):
+            indirect = _INDIRECT_DATA_TO_ADDRESS.get(source)
+            if indirect is not None:
                 # One level of indirection: the target's stored byte.
-                out[offset] = data[_U16.unpack_from(data, mapping)[0] % TABLE_SIZE]
-        return bytes(out)
+                source = _U16.unpack_from(data, indirect)[0] % TABLE_SIZE
+            if runs and runs[-1][1] == source:
+                runs[-1] = (runs[-1][0], source + 1)
+            else:
+                runs.append((source, source + 1))
+        return runs
 
     def plan_write(self, address: int, payload: bytes) -> tuple[bytearray, frozenset[str]]:
         """
