@@ -89,11 +89,20 @@ class RegisterStore(Protocol):
 # Moving (122), Moving Status (123), Present PWM (124), Present Current (126), Present Velocity
 # (128), Present Position (132), Velocity Trajectory (136), Position Trajectory (140), Present
 # Input Voltage (144), Present Temperature (146).
+_POSITION_MODE_HOMING_LIMIT = 1024
 _PRESENT_BLOCK = struct.Struct('<BBhhiiiiHB')
 _PRESENT_BLOCK_ADDRESS = 122
 _PRESENT_NAMES = ('moving', 'moving_status', 'present_pwm', 'present_current',
                   'present_velocity', 'present_position', 'velocity_trajectory',
                   'position_trajectory', 'present_input_voltage', 'present_temperature')
+
+
+def _homing_offset(regs: 'RegisterStore') -> int:
+    """Return the homing offset in effect: position mode ignores one beyond +-1024 (the seed)."""
+    offset = regs.get('homing_offset')
+    if regs.get('operating_mode') == MODE_POSITION and abs(offset) > _POSITION_MODE_HOMING_LIMIT:
+        return 0
+    return offset
 
 
 def _clamp_int(value: float, low: int, high: int) -> int:
@@ -195,7 +204,7 @@ class ServoDynamics:
             low = regs.get('min_position_limit')
             high = regs.get('max_position_limit')
             goal = min(max(goal, low), high) if low <= high else goal
-        goal_pulse = float(goal - self._turn_offset_pulse - regs.get('homing_offset'))
+        goal_pulse = float(goal - self._turn_offset_pulse - _homing_offset(regs))
         profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
                                 regs.get('profile_velocity'), regs.get('profile_acceleration'))
         self._profile = profile
@@ -216,7 +225,7 @@ class ServoDynamics:
         """Present position := horn position within one turn + homing offset."""
         turns = math.floor(self.horn_position_pulse / motor.PULSES_PER_REV)
         self._turn_offset_pulse = -motor.PULSES_PER_REV * turns
-        regs.set('present_position', self._present_position_raw(regs.get('homing_offset')))
+        regs.set('present_position', self._present_position_raw(_homing_offset(regs)))
 
     # ----------------------------------------------------------------- simulation
     def _sync_mode_and_torque(self, regs: RegisterStore) -> None:
@@ -466,7 +475,7 @@ class ServoDynamics:
                  overloaded_span: bool) -> int:
         """Write the present registers; return the detected error bits."""
         get = regs.get
-        homing = get('homing_offset')
+        homing = _homing_offset(regs)
         offset = self._turn_offset_pulse + homing
         velocity_raw = _clamp_int(self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S,
                                   _INT32_MIN, _INT32_MAX)
