@@ -74,6 +74,12 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'and restore its configuration and torque. Off: report it and leave it to you.'),
     ParamSpec('recovery_interval', float, 5.0,
               'Minimum time between two recovery reboots of the same servo.', 's', 0.1, 3600.0),
+    ParamSpec('cycle_driver', str, 'thread',
+              'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
+              'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
+    ParamSpec('executor', str, 'single',
+              'The ROS executor: rclpy SingleThreadedExecutor, or the experimental '
+              'EventsExecutor.', choices=('single', 'events')),
     ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
               0.0, 100.0),
     ParamSpec('temperature_error', float, 78.0, 'Diagnostics ERROR above this temperature.',
@@ -120,6 +126,8 @@ class DriverConfig:
     ping_retries: int = 3
     missing_servo: str = 'refuse'
     read_retries: int = 1
+    cycle_driver: str = 'thread'
+    executor: str = 'single'
     hardware_error_recovery: bool = False
     recovery_interval: float = 5.0
     temperature_warn: float = 70.0

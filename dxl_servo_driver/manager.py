@@ -765,6 +765,8 @@ class Manager:
                                         ct.OPERATING_MODES[mode])
                     servo.mode = mode
                     servo.goal_raw.clear()
+                    if mode == 'position':
+                        self._single_turn_homing(servo)
                     # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were
                     # reset by the mode change; give back what the configuration set.
                     for name, value in servo.joint.registers:
@@ -773,8 +775,29 @@ class Manager:
                     self._hold_and_enable(servo)
                     done.append(servo.name)
             except BusError as exc:
+                for servo in servos:
+                    self._resync_mode(servo)
                 return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
             return Result(True, f'{", ".join(done)} now in {mode} mode')
+
+    def _single_turn_homing(self, servo: Servo) -> None:
+        # Turns kept across reboots live in the homing offset; position mode ignores an offset
+        # beyond +-1024 (the seed), so give it back the configured one (or none).
+        assert self.bus is not None
+        item = ct.BY_NAME['homing_offset']
+        offset = self.bus.read_item(servo.servo_id, item)
+        if abs(offset) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
+            self._write_verified(servo, 'homing_offset',
+                                 servo.joint.register_dict().get('homing_offset', 0))
+
+    def _resync_mode(self, servo: Servo) -> None:
+        """After a failure, believe the servo about its mode."""
+        assert self.bus is not None
+        try:
+            raw = self.bus.read_item(servo.servo_id, ct.BY_NAME['operating_mode'])
+            servo.mode = model.MODE_NAMES.get(raw, servo.mode)
+        except BusError:
+            pass
 
     def reboot(self, names: Sequence[str]) -> Result:
         """Reboot, then configuration, mode and torque state restored."""
@@ -871,6 +894,6 @@ class Manager:
 def _register(key: str) -> Tuple[Optional[ct.Item], str]:
     key = key.strip()
     try:
-        return ct.lookup(int(key) if key.isdigit() else key), ''
+        return ct.lookup(int(key) if key.isascii() and key.isdigit() else key), ''
     except KeyError as exc:
         return None, str(exc.args[0])

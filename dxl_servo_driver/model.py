@@ -118,7 +118,10 @@ MODE_CHANGE_RESETS = (
 
 # Registers the driver manages itself; a configuration may not set them.
 DRIVER_OWNED = frozenset(
-    {'torque_enable', 'operating_mode', 'id', 'baud_rate', 'goal_position', 'goal_velocity'}
+    # status_return_level: the driver needs status packets, and the state block's restart
+    # canary is that register.
+    {'torque_enable', 'operating_mode', 'id', 'baud_rate', 'goal_position', 'goal_velocity',
+     'status_return_level'}
     | {f'indirect_address_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)}
     | {f'indirect_data_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)})
 

@@ -104,6 +104,7 @@ class DriverNode(LifecycleNode):
         self._active = False
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
+        self._timer: Any = None
         self._rate = RateMeter()
         self._loop_period_s = 1.0 / self.config.loop_rate
         self._state_period_s = (1.0 / self.config.state_rate) if self.config.state_rate else 0.0
@@ -199,6 +200,9 @@ class DriverNode(LifecycleNode):
         for name, value in changes.items():
             if name == 'loop_rate':
                 self._loop_period_s = 1.0 / value
+                if self._timer is not None:
+                    self.destroy_timer(self._timer)
+                    self._timer = self.create_timer(self._loop_period_s, self._timer_cycle)
             elif name == 'state_rate':
                 self._state_period_s = (1.0 / value) if value else 0.0
                 self._set_health_period()
@@ -230,8 +234,12 @@ class DriverNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self._stop.clear()
         self._active = True
-        self._thread = threading.Thread(target=self._run, name='dxl_bus_cycle', daemon=True)
-        self._thread.start()
+        if self.config.cycle_driver == 'timer':
+            self._timer = self.create_timer(self._loop_period_s, self._timer_cycle)
+        else:
+            self._thread = threading.Thread(target=self._run, name='dxl_bus_cycle',
+                                            daemon=True)
+            self._thread.start()
         self.get_logger().info(
             f'active: {len(self.manager.active_servos())} servos on {self.config.port} at '
             f'{self.config.baud_rate} bps, loop_rate {self.config.loop_rate:g} Hz')
@@ -256,13 +264,16 @@ class DriverNode(LifecycleNode):
     def _stop_cycle(self) -> None:
         self._active = False
         self._stop.set()
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
 
     def shutdown(self) -> None:
         """Stop the cycle, apply torque_off_on_shutdown, close the port. Idempotent."""
-        was_active = self._active or self._thread is not None
+        was_active = self._active or self._thread is not None or self._timer is not None
         self._stop_cycle()
         if was_active:
             self.manager.deactivate()
@@ -305,6 +316,15 @@ class DriverNode(LifecycleNode):
                         f'the bus cannot keep loop_rate {1.0 / self._loop_period_s:g} Hz: '
                         'running as fast as it allows (the measured rate is in /diagnostics)')
                 next_s = time.monotonic()
+
+    def _timer_cycle(self) -> None:
+        try:
+            self._cycle()
+        except Exception as exc:  # noqa: B902 - the cycle must survive anything
+            self.get_logger().error(f'cycle failed: {exc}', throttle_duration_sec=2.0)
+        self._rate.tick()
+        if time.monotonic() >= self._next_rate_log_s:
+            self._log_rate()
 
     def _log_rate(self) -> None:
         # A first report once the rate has settled, then one a minute.
@@ -354,6 +374,8 @@ class DriverNode(LifecycleNode):
             positions.append((state[0] - zero) * rad_per_pulse)
             velocities.append(state[1] * rad_s)
             efforts.append(state[2] * nm_per_raw)
+        if not names:
+            return   # nobody answered: nothing to say (and never a stale value)
         if len(names) == len(self._all_names):
             names = self._all_names
         msg.name = names
@@ -568,7 +590,11 @@ def main(args: Optional[List[str]] = None) -> int:
     try:
         node = DriverNode()
         node.start()
-        executor = SingleThreadedExecutor()
+        if node.config.executor == 'events':
+            from rclpy.experimental import EventsExecutor
+            executor: Any = EventsExecutor()
+        else:
+            executor = SingleThreadedExecutor()
         executor.add_node(node)
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.2)
