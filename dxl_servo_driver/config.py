@@ -77,9 +77,9 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
               'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
-    ParamSpec('executor', str, 'single',
-              'The ROS executor: rclpy SingleThreadedExecutor, or the experimental '
-              'EventsExecutor.', choices=('single', 'events')),
+    ParamSpec('executor', str, 'events',
+              'The ROS executor: rclpy\'s EventsExecutor (lower command latency and CPU in the '
+              'benchmark) or its SingleThreadedExecutor.', choices=('single', 'events')),
     ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
               0.0, 100.0),
     ParamSpec('temperature_error', float, 78.0, 'Diagnostics ERROR above this temperature.',
@@ -127,7 +127,7 @@ class DriverConfig:
     missing_servo: str = 'refuse'
     read_retries: int = 1
     cycle_driver: str = 'thread'
-    executor: str = 'single'
+    executor: str = 'events'
     hardware_error_recovery: bool = False
     recovery_interval: float = 5.0
     temperature_warn: float = 70.0
