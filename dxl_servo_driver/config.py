@@ -78,7 +78,7 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
               'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
     ParamSpec('executor', str, 'events',
-              'The ROS executor: rclpy\'s EventsExecutor (lower command latency and CPU in the '
+              "The ROS executor: rclpy's EventsExecutor (lower command latency and CPU in the "
               'benchmark) or its SingleThreadedExecutor.', choices=('single', 'events')),
     ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
               0.0, 100.0),
