@@ -65,6 +65,7 @@ class Servo:
     timed_out: bool = False
     limits: Dict[str, int] = field(default_factory=dict)
     restarts: int = 0
+    switching: bool = False         # a mode switch is under way: commands wait for it
     recoveries: int = 0
     last_recovery_s: float = -1e9
 
@@ -150,6 +151,10 @@ class Manager:
         # Serialises requests (services, topics, the cycle) over the manager's state.
         self.lock = threading.RLock()
         self._pending: Dict[str, Dict[int, int]] = {}   # register -> {servo id: raw goal}
+        # Commands only queue: they take this small lock, never the bus lock above, so a
+        # command arriving during a read is queued at once and goes out in this cycle's write.
+        # Order when both are needed: self.lock, then _queue_lock.
+        self._queue_lock = threading.Lock()
         self.cycles = 0
         self.read_failures = 0
         self.retries = 0
@@ -312,7 +317,7 @@ class Manager:
                     self._hold_and_enable(servo)
                 except BusError as exc:
                     raise ManagerError(f'activation failed: {exc}') from None
-            self._pending.clear()
+            self._clear_pending()
             self._need_full = True
 
     def _hold_and_enable(self, servo: Servo) -> None:
@@ -341,7 +346,7 @@ class Manager:
     def deactivate(self) -> None:
         """Torque off (if torque_off_on_shutdown); pending goals dropped."""
         with self.lock:
-            self._pending.clear()
+            self._clear_pending()
             if not self.config.torque_off_on_shutdown or self.bus is None:
                 return
             for servo in self.active_servos():
@@ -554,7 +559,7 @@ class Manager:
     def _lose_port(self, exc: BusError) -> None:
         self.port_lost = True
         self.port_error = str(exc)
-        self._pending.clear()
+        self._clear_pending()
         for servo in self.order:
             servo.fresh = False
         self.error(f'{self.config.port}: {exc}. The node stays up and reconnects when the '
@@ -598,7 +603,8 @@ class Manager:
         with self.lock:
             if not self._pending or self.bus is None:
                 return 0
-            pending, self._pending = self._pending, {}
+            with self._queue_lock:
+                pending, self._pending = self._pending, {}
             written = 0
             for register, goals in pending.items():
                 item = ct.BY_NAME[register]
@@ -614,7 +620,7 @@ class Manager:
         if timeout <= 0.0:
             return
         now = self._clock()
-        with self.lock:
+        with self.lock, self._queue_lock:
             for servo in self.active_servos():
                 if servo.timed_out or servo.mode in model.POSITION_MODES:
                     continue
@@ -657,6 +663,8 @@ class Manager:
                 return None, f'joint {name!r} is not on the bus (missing at configure)'
             if not math.isfinite(value):
                 return None, f'joint {name!r}: {value} is not a finite number'
+            if servo.switching:
+                return None, f'joint {name!r} is changing its operating mode: try again'
             if kind not in model.MODE_COMMANDS[servo.mode]:
                 return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
                               'apply to it')
@@ -686,7 +694,7 @@ class Manager:
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Queue goals (topic path): written by the next cycle's sync write."""
-        with self.lock:
+        with self._queue_lock:
             goals, reason = self.check_goals(kind, names, values)
             if goals is None:
                 return Result(False, reason)
@@ -741,9 +749,14 @@ class Manager:
             return Result(True, f'torque {"on" if enable else "off"} for '
                           f'{", ".join(s.name for s in servos)}')
 
+    def _clear_pending(self) -> None:
+        with self._queue_lock:
+            self._pending.clear()
+
     def _pending_drop(self, servo: Servo) -> None:
-        for goals in self._pending.values():
-            goals.pop(servo.servo_id, None)
+        with self._queue_lock:
+            for goals in self._pending.values():
+                goals.pop(servo.servo_id, None)
 
     def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
         """Torque off, mode, what a mode change resets re-applied, goal = present, torque back."""
@@ -759,7 +772,10 @@ class Manager:
             done = []
             try:
                 for servo in servos:
-                    self._pending_drop(servo)
+                    with self._queue_lock:
+                        servo.switching = True
+                        for goals in self._pending.values():
+                            goals.pop(servo.servo_id, None)
                     self.bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
                     self.bus.write_item(servo.servo_id, ct.BY_NAME['operating_mode'],
                                         ct.OPERATING_MODES[mode])
@@ -778,6 +794,9 @@ class Manager:
                 for servo in servos:
                     self._resync_mode(servo)
                 return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
+            finally:
+                for servo in servos:
+                    servo.switching = False
             return Result(True, f'{", ".join(done)} now in {mode} mode')
 
     def _single_turn_homing(self, servo: Servo) -> None:

@@ -57,3 +57,16 @@ def test_every_interface_field_is_commented() -> None:
             code = line.split('#', 1)[0].strip()
             if code and code != '---':
                 assert '#' in line, f'{path.name}: field without a comment: {line!r}'
+
+
+def test_package_xml_declares_what_the_code_imports() -> None:
+    import xml.etree.ElementTree as ElementTree
+    tree = ElementTree.parse(ROOT / 'package.xml')
+    assert tree.getroot().get('format') == '3'
+    keys = {element.text for element in tree.getroot()
+            if element.tag in ('depend', 'exec_depend', 'test_depend')}
+    for key in ('rclpy', 'rcl_interfaces', 'sensor_msgs', 'std_msgs', 'diagnostic_msgs',
+                'lifecycle_msgs', 'dxl_servo_driver_msgs', 'dynamixel_sdk', 'python3-serial',
+                'python3-yaml', 'launch', 'launch_ros', 'ament_index_python', 'ament_flake8',
+                'ament_pep257', 'python3-pytest', 'python3-hypothesis'):
+        assert key in keys, key
