@@ -55,6 +55,11 @@ class SimBus:
         self._clock = clock
         self._random = random.Random(seed)
         self._parser = StreamParser()
+        # How far behind a servo's physics may be when a packet arrives. 0: brought up to date
+        # at every packet. A server with idle time (virtual_bus --timing wire) raises it and
+        # calls advance_stalest() between packets, so replies are not held up by the physics.
+        self.physics_lag_s = 0.0
+        self.last_packet_s = float('-inf')
         now_s = clock()
         self._slots: list[_Slot] = []
         for servo_id in ids:
@@ -72,8 +77,10 @@ class SimBus:
             events = self._parser.feed(bytes(data), now_s)
             if not events:
                 return []
+            self.last_packet_s = now_s
+            lag_s = self.physics_lag_s
             for slot in self._slots:
-                slot.servo.advance(now_s)
+                slot.servo.advance(now_s, lag_s)
             replies: list[Reply] = []
             for event in events:
                 order = _reply_order(event.packet) if event.crc_ok else None
@@ -94,6 +101,21 @@ class SimBus:
                 answered.sort(key=lambda entry: (entry[0], entry[1]))
                 replies.extend(entry[2] for entry in answered)
             return replies
+
+    def advance_stalest(self, min_age_s: float) -> bool:
+        """
+        Bring the servo whose physics is the oldest up to now, if it is min_age_s behind.
+
+        Returns whether one was advanced: a server calls this in its idle time, one servo at a
+        time, checking for incoming bytes in between.
+        """
+        with self.lock:
+            now_s = self._clock()
+            stalest = min(self._slots, key=lambda slot: slot.servo.physics_time_s, default=None)
+            if stalest is None or now_s - stalest.servo.physics_time_s < min_age_s:
+                return False
+            stalest.servo.advance(now_s)
+            return True
 
     def _inject(self, slot: _Slot, status: bytes, servo_id: int) -> Reply | None:
         rng = self._random

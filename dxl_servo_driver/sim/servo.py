@@ -113,9 +113,16 @@ class SimServo:
         """Return whether the servo hears packets at now_s (powered and booted)."""
         return self.powered and now_s >= self._ready_s
 
-    def advance(self, now_s: float) -> None:
-        """Run the physics up to now_s and latch what it detected."""
+    @property
+    def physics_time_s(self) -> float:
+        """Return the time the physics was last advanced to."""
+        return self._last_s
+
+    def advance(self, now_s: float, lag_s: float = 0.0) -> None:
+        """Run the physics up to now_s (unless it is less than lag_s behind) and latch errors."""
         dt_s = now_s - self._last_s
+        if dt_s < lag_s:
+            return
         if dt_s <= 0.0:
             return
         if not self.powered:

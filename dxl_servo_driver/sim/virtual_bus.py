@@ -36,6 +36,7 @@ from typing import Callable, NoReturn, Sequence, TextIO
 from dxl_servo_driver import control_table, protocol
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler
 
@@ -127,6 +128,14 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -
                     time.sleep(0.01)
 
 
+# Wire timing: a servo's physics may be up to this far behind when a packet arrives; between
+# packets the server advances one servo at a time (about 20 us each) when the next reply is not
+# due within IDLE_SLICE_S, while the bus has been busy within ACTIVE_WINDOW_S.
+PHYSICS_LAG_S = 0.004
+IDLE_SLICE_S = 150e-6
+ACTIVE_WINDOW_S = 0.05
+
+
 class GoalTracer:
     """
     Log every goal_position the host writes, with the time it reached the bus.
@@ -211,13 +220,23 @@ class VirtualBusServer:
 
     def serve(self) -> None:
         """Move bytes between the pty and the bus until stop()."""
-        if self.timing == 'wire' and self._clock is time.monotonic:
-            self.spin_s = fine_timer_slack()
+        idle_physics = self.timing == 'wire'
+        if idle_physics:
+            if self._clock is time.monotonic:
+                self.spin_s = fine_timer_slack()
+            # Replies must leave on time: the physics runs between packets instead.
+            self.bus.physics_lag_s = PHYSICS_LAG_S
         while not self._stopping:
             timeout_s = 0.5
+            now_s = self._clock()
             if self._pending:
-                timeout_s = min(timeout_s,
-                                max(0.0, self._pending[0][0] - self._clock() - self.spin_s))
+                timeout_s = min(timeout_s, max(0.0, self._pending[0][0] - now_s - self.spin_s))
+            if (idle_physics and timeout_s > IDLE_SLICE_S
+                    and now_s - self.bus.last_packet_s < ACTIVE_WINDOW_S):
+                if self.bus.advance_stalest(CONTROL_PERIOD_S):
+                    timeout_s = 0.0   # look for input, then the next servo
+                else:
+                    timeout_s = min(timeout_s, CONTROL_PERIOD_S)
             try:
                 readable, _, _ = select.select([self._master, self._wake_r], [], [], timeout_s)
             except InterruptedError:  # pragma: no cover - PEP 475 retries; kept for safety
