@@ -299,6 +299,7 @@ class Bus:
         self._sdk = dynamixel_sdk.Protocol2PacketHandler()
         self._sdk_port = _SdkPort(self)
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...]], bytes] = {}
+        self._in_flight: Optional[Tuple[Tuple[int, ...], int, float]] = None
         self.tx_packets = 0
         self.timeouts = 0
         self.corrupt = 0
@@ -421,19 +422,48 @@ class Bus:
         Returns {id: data} for the servos that answered well and {id: BusError} for the others;
         a servo that is silent or corrupted never stops the others from being read.
         """
+        self.sync_read_begin(address, length, ids)
+        return self.sync_read_end()
+
+    def sync_read_begin(self, address: int, length: int, ids: Sequence[int]) -> None:
+        """
+        Send a SYNC_READ and return at once; sync_read_end() collects the replies.
+
+        The caller may do other work (publish the previous cycle) while the servos answer. The
+        bus lock is held from here to sync_read_end(), which must follow in the same thread.
+        """
         id_tuple = tuple(ids)
         packet = self._sync_read_packet(address, length, id_tuple)
-        reply_size = STATUS_OVERHEAD + length
-        expected = reply_size * len(id_tuple)
-        with self.lock:
+        expected = (STATUS_OVERHEAD + length) * len(id_tuple)
+        self.lock.acquire()
+        try:
+            port = self.port
+            if port.in_waiting:
+                port.reset_input_buffer()   # a late reply of an earlier transaction
+            port.write(packet)
+            self.tx_packets += 1
+        except (PortError, OSError) as exc:
+            self.lock.release()
+            raise _port_lost(exc) from None
+        except BaseException:
+            self.lock.release()
+            raise
+        deadline = time.monotonic() + self.reply_timeout_s(expected, len(id_tuple), len(packet))
+        self._in_flight = (id_tuple, length, deadline)
+
+    def sync_read_end(self) -> SyncResult:
+        """Collect the replies of the SYNC_READ sent by sync_read_begin()."""
+        try:
+            in_flight = self._in_flight
+            if in_flight is None:
+                raise RuntimeError('sync_read_end() without sync_read_begin()')
+            self._in_flight = None
+            id_tuple, length, deadline = in_flight
+            reply_size = STATUS_OVERHEAD + length
             port = self.port
             try:
-                port.reset_input_buffer()
-                port.write(packet)
-                self.tx_packets += 1
-                deadline = time.monotonic() + self.reply_timeout_s(expected, len(id_tuple),
-                                                                   len(packet))
-                buffer = port.read(expected, deadline - time.monotonic())
+                buffer = port.read(reply_size * len(id_tuple),
+                                   max(0.0, deadline - time.monotonic()))
                 results = self._parse_sync(buffer, id_tuple, length)
                 while len(results) < len(id_tuple):
                     # Byte stuffing or a bad packet made the replies longer, or this thread
@@ -445,6 +475,8 @@ class Bus:
                     results = self._parse_sync(buffer, id_tuple, length)
             except (PortError, OSError) as exc:
                 raise _port_lost(exc) from None
+        finally:
+            self.lock.release()
         for servo_id in id_tuple:
             if servo_id not in results:
                 self.timeouts += 1

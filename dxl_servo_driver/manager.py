@@ -38,6 +38,7 @@ STATUS_BYTES = 11   # status packet overhead
 READ_BYTES = 14     # a READ instruction packet
 TURN_PULSES = 4096
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.MOTION_FIELDS)
+_ALL_ZERO_MOTION = (0,) * BLOCK.MOTION_FIELDS
 
 
 class ManagerError(Exception):
@@ -172,6 +173,7 @@ class Manager:
         self._last_full_s = -1e9
         self._need_full = True
         self._ids_cache: List[Tuple[Servo, int]] = []
+        self._reading: Optional[Tuple[float, bool, int]] = None   # begin_read() in flight
         self._id_list: List[int] = []
 
     # configure / activate ---------------------------------------------------------------
@@ -375,54 +377,107 @@ class Manager:
         budget). A servo that still does not answer well keeps fresh False: it is left out of
         what is published, never given a stale or invented value.
         """
-        with self.lock:
+        self.begin_read(full)
+        return self.end_read(retry_until)
+
+    def begin_read(self, full: Optional[bool] = None) -> None:
+        """
+        Put the cycle's sync read on the wire and return; end_read() collects it.
+
+        The manager's lock (and the bus's) stay held until end_read(), in the same thread: in
+        between, the caller may only do work that needs neither (publishing the last cycle).
+        """
+        self.lock.acquire()
+        try:
             assert self.bus is not None
-            servos = self._ids_cache
             stamp = self._clock()
             if full is None:
                 full = (stamp - self._last_full_s >= self.health_period_s
                         or self._need_full)
             length = BLOCK.size if full else BLOCK.motion_size
-            results = self.bus.sync_read(BLOCK.read_address, length, self._id_list)
+            self.bus.sync_read_begin(BLOCK.read_address, length, self._id_list)
+        except BaseException:
+            self.lock.release()
+            raise
+        self._reading = (stamp, full, length)
+
+    def end_read(self, retry_until: Optional[float] = None) -> float:
+        """Collect the sync read begun by begin_read(); return its monotonic time."""
+        try:
+            assert self.bus is not None and self._reading is not None
+            stamp, full, length = self._reading
+            self._reading = None
+            results = self.bus.sync_read_end()
             if retry_until is not None and self.config.read_retries:
                 self._retry_failed(results, length, retry_until)
             self._need_full = False
             if full:
                 self._last_full_s = stamp
-            alerts = self.bus.alerts
-            decode = BLOCK.decode if full else BLOCK.decode_motion
-            for servo, servo_id in servos:
-                data = results.get(servo_id)
-                if isinstance(data, bytes):
-                    values = decode(data)
-                    if values[IDX_CANARY] == 0:   # BLOCK.restarted(), inlined
-                        servo.fresh = False
-                        self._recover_restart(servo)
-                        continue
-                    if full:
-                        servo.state = values
-                        servo.health_time = stamp
-                    elif servo.state is not None:
-                        servo.state = values + servo.state[BLOCK.MOTION_FIELDS:]
-                    else:
-                        # Motion is good; the health part is not known yet (health_time 0).
-                        servo.state = values + _NO_HEALTH
-                        self._need_full = True
-                    if alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
-                        self._need_full = True   # a new hardware error: decode it next cycle
-                    servo.state_time = stamp
-                    servo.fresh = True
-                    servo.consecutive_failures = 0
-                else:
-                    servo.fresh = False
-                    servo.comm_errors += 1
-                    servo.consecutive_failures += 1
-                    self.read_failures += 1
-                    self.warn_throttled(f'read:{servo.name}',
-                                        f'joint {servo.name!r}: state read failed: {data}')
+            self._take_results(results, full, stamp)
             self.cycles += 1
             self.last_read_time = stamp
             return stamp
+        finally:
+            self.lock.release()
+
+    def _take_results(self, results: Dict[int, Any], full: bool, stamp: float) -> None:
+        alerts = self.bus.alerts if self.bus is not None else {}
+        decode = BLOCK.decode if full else BLOCK.decode_motion
+        for servo, servo_id in self._ids_cache:
+            data = results.get(servo_id)
+            if isinstance(data, bytes):
+                values = decode(data)
+                if not full and values == _ALL_ZERO_MOTION:
+                    # What a restarted servo returns (its indirect map is gone) - or a horn at
+                    # exactly -pi, at rest: ask for the whole block, canary included, to know.
+                    values, full_values = self._check_restart(servo)
+                    if values is None:
+                        continue
+                    if full_values:
+                        servo.state = values
+                        servo.health_time = stamp
+                        values = values[:BLOCK.MOTION_FIELDS]
+                elif full and values[IDX_CANARY] == 0:
+                    servo.fresh = False
+                    self._recover_restart(servo)
+                    continue
+                if full:
+                    servo.state = values
+                    servo.health_time = stamp
+                elif servo.state is not None:
+                    servo.state = values + servo.state[BLOCK.MOTION_FIELDS:]
+                else:
+                    # Motion is good; the health part is not known yet (health_time 0).
+                    servo.state = values + _NO_HEALTH
+                    self._need_full = True
+                if alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
+                    self._need_full = True   # a new hardware error: decode it next cycle
+                servo.state_time = stamp
+                servo.fresh = True
+                servo.consecutive_failures = 0
+            else:
+                servo.fresh = False
+                servo.comm_errors += 1
+                servo.consecutive_failures += 1
+                self.read_failures += 1
+                self.warn_throttled(f'read:{servo.name}',
+                                    f'joint {servo.name!r}: state read failed: {data}')
+
+    def _check_restart(self, servo: Servo) -> Tuple[Optional[Tuple[int, ...]], bool]:
+        """Read the whole block of a servo whose motion read was all zeros; restore if needed."""
+        assert self.bus is not None
+        try:
+            values = BLOCK.decode(self.bus.read(servo.servo_id, BLOCK.read_address, BLOCK.size))
+        except PortError:
+            raise
+        except BusError:
+            servo.fresh = False
+            return None, False
+        if values[IDX_CANARY] == 0:
+            servo.fresh = False
+            self._recover_restart(servo)
+            return None, False
+        return values, True
 
     def _retry_failed(self, results: Dict[int, Any], length: int, until: float) -> None:
         assert self.bus is not None
@@ -534,15 +589,31 @@ class Manager:
     # port loss ------------------------------------------------------------------------------
     def cycle_read(self, retry_until: Optional[float] = None) -> bool:
         """Read states unless the port is lost; False when nothing was read this cycle."""
-        with self.lock:
-            if self.port_lost and not self._reconnect():
-                return False
-            try:
-                self.read_states(retry_until=retry_until)
-            except PortError as exc:
+        return self.cycle_begin() and self.cycle_end(retry_until)
+
+    def cycle_begin(self) -> bool:
+        """begin_read() unless the port is lost; False when no read is in flight."""
+        if self.port_lost:
+            with self.lock:
+                if not self._reconnect():
+                    return False
+        try:
+            self.begin_read()
+        except PortError as exc:
+            with self.lock:
                 self._lose_port(exc)
-                return False
-            return True
+            return False
+        return True
+
+    def cycle_end(self, retry_until: Optional[float] = None) -> bool:
+        """end_read() of a cycle_begin(); False when the port was lost meanwhile."""
+        try:
+            self.end_read(retry_until)
+        except PortError as exc:
+            with self.lock:
+                self._lose_port(exc)
+            return False
+        return True
 
     def cycle_write(self) -> None:
         """Command timeouts, pending goals, hardware-error recovery; port loss handled."""

@@ -162,22 +162,23 @@ class StateBlock:
 
     The registers below are scattered over the table (64, 68, 70, 122..146); mapping them to
     consecutive indirect data bytes lets one sync read fetch all of them from every servo.
-    The block has two parts. The motion part (position, velocity, current and a canary) is read
-    every cycle; the health part after it (pwm, voltage, temperature, moving, errors, torque)
-    only when diagnostics or servo_states need it, by reading the whole block in that cycle's
-    one sync read instead: so a cycle carries 11 bytes per servo, not 20.
+    The block has two parts. The motion part (position, velocity, current: the same 10 bytes any
+    control loop reads) is read every cycle; the health part after it (a canary, pwm, voltage,
+    temperature, moving, errors, torque) only when diagnostics or servo_states need it, by
+    reading the whole block in that cycle's one sync read instead.
 
     The canary maps status_return_level, which the driver never sets to 0: after a reboot or a
-    power cut the indirect addresses return to their defaults and that byte reads 0, which is
-    how the driver notices a servo that restarted on its own, before publishing anything it read.
+    power cut the indirect addresses return to their defaults and the whole block reads 0. A
+    motion part of all zeros is therefore checked against the canary before anything is
+    published: that is how the driver notices a servo that restarted on its own.
     """
 
     FIELDS: tuple[tuple[str, str], ...] = (
         ('present_position', 'i'),
         ('present_velocity', 'i'),
         ('present_current', 'h'),
-        ('status_return_level', 'B'),
         # health part
+        ('status_return_level', 'B'),
         ('present_pwm', 'h'),
         ('present_input_voltage', 'H'),
         ('present_temperature', 'B'),
@@ -186,7 +187,7 @@ class StateBlock:
         ('hardware_error_status', 'B'),
         ('torque_enable', 'B'),
     )
-    MOTION_FIELDS = 4
+    MOTION_FIELDS = 3
     FIRST_INDIRECT = 1
 
     def __init__(self) -> None:

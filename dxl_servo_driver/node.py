@@ -115,6 +115,8 @@ class DriverNode(LifecycleNode):
         self._last_diag_s = 0.0
         self._joint_state = JointState()
         self._bus_cycle_s = 0.0
+        self._read_stamp: Any = None
+        self._read_began_s = 0.0
         self._next_rate_log_s = 0.0
         assert (IDX_POSITION, IDX_VELOCITY, IDX_CURRENT) == (0, 1, 2)
         # (servo, joint name, N*m per current unit) per joint, in joint_states order.
@@ -294,32 +296,72 @@ class DriverNode(LifecycleNode):
 
     # the cycle -----------------------------------------------------------------------------
     def _run(self) -> None:
+        """
+        Run the bus cycle in its own thread: read, write goals, publish, pace.
+
+        When the next cycle is due at once (the loop runs as fast as the bus allows), the next
+        read goes on the wire before this cycle is published, so publishing overlaps the bus
+        transaction instead of adding to it.
+        """
         next_s = time.monotonic()
         behind_reported = False
+        reading = self._begin()
         while not self._stop.is_set():
             try:
-                self._cycle()
+                stamp, began_s = self._read_stamp, self._read_began_s
+                ok = reading is not None and self._end(began_s)
+                reading = None
+                self.manager.cycle_write()
+                next_s += self._loop_period_s
+                delay = next_s - time.monotonic()
+                if delay < -self._loop_period_s:
+                    if not behind_reported:
+                        behind_reported = True
+                        self.get_logger().warning(
+                            f'the bus cannot keep loop_rate {1.0 / self._loop_period_s:g} Hz: '
+                            'running as fast as it allows (the measured rate is in '
+                            '/diagnostics)')
+                    next_s = time.monotonic()
+                pipelined = delay <= self._bus_cycle_s
+                if pipelined:
+                    reading = self._begin()
+                self._publish(stamp, ok)
             except Exception as exc:  # noqa: B902 - the cycle must survive anything
                 self.get_logger().error(f'cycle failed: {exc}', throttle_duration_sec=2.0)
+                if reading is not None:
+                    self._end(time.monotonic())
+                    reading = None
                 self._stop.wait(0.1)
+                pipelined = False
             self._rate.tick()
             if time.monotonic() >= self._next_rate_log_s:
                 self._log_rate()
-            next_s += self._loop_period_s
-            delay = next_s - time.monotonic()
-            if delay > 0:
-                self._stop.wait(delay)
-            else:
-                if delay < -self._loop_period_s and not behind_reported:
-                    behind_reported = True
-                    self.get_logger().warning(
-                        f'the bus cannot keep loop_rate {1.0 / self._loop_period_s:g} Hz: '
-                        'running as fast as it allows (the measured rate is in /diagnostics)')
-                next_s = time.monotonic()
+            if not pipelined:
+                delay = next_s - time.monotonic()
+                if delay > 0:
+                    self._stop.wait(delay)
+                reading = self._begin()
+        if reading is not None:
+            self._end(time.monotonic())   # never leave the bus held
+
+    def _begin(self) -> Optional[bool]:
+        """Stamp and start a read; None when the port is lost (nothing in flight)."""
+        self._read_stamp = self.get_clock().now().to_msg()
+        self._read_began_s = time.monotonic()
+        return True if self.manager.cycle_begin() else None
+
+    def _end(self, began_s: float) -> bool:
+        # Lost or corrupted replies are read again while the cycle has time (or twice the bus
+        # time when the loop runs as fast as the bus allows).
+        retry_until = began_s + max(0.9 * self._loop_period_s, 2.0 * self._bus_cycle_s)
+        return self.manager.cycle_end(retry_until)
 
     def _timer_cycle(self) -> None:
         try:
-            self._cycle()
+            began = self._begin()
+            ok = began is not None and self._end(self._read_began_s)
+            self.manager.cycle_write()
+            self._publish(self._read_stamp, ok)
         except Exception as exc:  # noqa: B902 - the cycle must survive anything
             self.get_logger().error(f'cycle failed: {exc}', throttle_duration_sec=2.0)
         self._rate.tick()
@@ -338,15 +380,9 @@ class DriverNode(LifecycleNode):
             f'{1.0 / self._loop_period_s:g} Hz, bus limit {budget.rate_limit_hz:.0f} Hz); '
             f'{self.manager.read_failures} read failures, {self.manager.retries} retries')
 
-    def _cycle(self) -> None:
-        start = time.monotonic()
-        stamp = self.get_clock().now().to_msg()
-        # Lost or corrupted replies are read again while the cycle has time (or twice the bus
-        # time when the loop runs as fast as the bus allows).
-        retry_until = start + max(0.9 * self._loop_period_s, 2.0 * self._bus_cycle_s)
-        if self.manager.cycle_read(retry_until):
+    def _publish(self, stamp: Any, read_ok: bool) -> None:
+        if read_ok:
             self._publish_joint_states(stamp)
-        self.manager.cycle_write()
         now = time.monotonic()
         if self._state_period_s and now - self._last_state_s >= self._state_period_s:
             self._last_state_s = now
