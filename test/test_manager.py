@@ -521,3 +521,33 @@ def test_port_loss_then_reconnect(active: Tuple[Rig, Manager]) -> None:
     assert all(rig.reg(i, 'torque_enable') == 1 for i in (1, 2, 3))
     assert rig.reg(1, 'profile_velocity') == 200
     assert any('port back' in line for line in rig.logs)
+
+
+def test_a_restart_is_caught_by_a_motion_only_read(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    manager.health_period_s = 3600.0
+    manager.read_states(full=True)
+    rig.tap.packets.clear()
+    rig.sim.powercycle(2)
+    rig.wait_booted(2)
+    manager.read_states()                 # motion part only: reads all zeros from servo 2
+    lengths = [p.params[2] for p in rig.tap.packets if p.instruction == Instruction.SYNC_READ]
+    assert lengths[0] == model.STATE_BLOCK.motion_size
+    assert manager.servos['wheel'].restarts == 1
+    assert not manager.servos['wheel'].fresh        # nothing published from that read
+    assert rig.reg(2, 'operating_mode') == 1 and rig.reg(2, 'torque_enable') == 1
+    manager.read_states()
+    assert manager.servos['wheel'].fresh
+
+
+def test_a_horn_at_minus_pi_at_rest_is_not_a_restart(active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    manager.health_period_s = 3600.0
+    assert manager.set_torque(['arm'], False).success
+    rig.sim.servo(1).dynamics.horn_position_pulse = 0.0   # raw 0, no motion, no current
+    time.sleep(0.005)
+    manager.read_states(full=True)
+    manager.read_states()
+    arm = manager.servos['arm']
+    assert arm.fresh and arm.restarts == 0
+    assert arm.state[0] == 0 and model.position_to_rad(arm.state[0]) == -math.pi
