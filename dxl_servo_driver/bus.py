@@ -454,11 +454,11 @@ class Bus:
 
     def sync_read_end(self) -> SyncResult:
         """Collect the replies of the SYNC_READ sent by sync_read_begin()."""
+        in_flight = self._in_flight
+        if in_flight is None:
+            raise RuntimeError('sync_read_end() without sync_read_begin()')
+        self._in_flight = None
         try:
-            in_flight = self._in_flight
-            if in_flight is None:
-                raise RuntimeError('sync_read_end() without sync_read_begin()')
-            self._in_flight = None
             id_tuple, length, deadline = in_flight
             reply_size = STATUS_OVERHEAD + length
             port = self.port
