@@ -72,8 +72,17 @@ class StatusError(BusError):
 class RawPort(Protocol):
     """The byte-level port the bus needs (a serial device or the simulator's in-process port)."""
 
-    baudrate: int
-    in_waiting: int
+    @property
+    def baudrate(self) -> int:
+        """Return the line speed in bit/s."""
+
+    @baudrate.setter
+    def baudrate(self, baud_bps: int) -> None:
+        """Change the line speed."""
+
+    @property
+    def in_waiting(self) -> int:
+        """Return how many received bytes wait to be read."""
 
     def write(self, data: bytes) -> int:
         """Send bytes."""

@@ -212,6 +212,12 @@ class Manager:
         return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
                                 rdt_raw, self.config.latency_timer / 1000.0)
 
+    def _open_bus(self) -> Bus:
+        """Return the bus; BusError (a failure a request reports) when it is not open."""
+        if self.bus is None:
+            raise BusError('the bus is not open (the node is not configured)')
+        return self.bus
+
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""
         return [servo for servo in self.order if servo.online]
@@ -254,10 +260,10 @@ class Manager:
                           '(a reboot clears them)')
             self.info(f'found joint {servo.name!r}: id {servo.servo_id}, model {model_number}, '
                       f'firmware {servo.firmware_version}, mode {servo.mode}')
-        for servo, exc in missing:
+        for servo, failure in missing:
             message = (f'joint {servo.name!r}: servo id {servo.servo_id} did not answer '
                        f'{self.config.ping_retries} pings at {self.config.baud_rate} bps '
-                       f'({exc}); check the id, the baud rate, the power and the cable')
+                       f'({failure}); check the id, the baud rate, the power and the cable')
             if self.config.missing_servo == 'refuse':
                 raise ManagerError(message)
             self.warn(message + '; starting without it (missing_servo: skip)')
@@ -430,13 +436,12 @@ class Manager:
                 if not full and values == _ALL_ZERO_MOTION:
                     # What a restarted servo returns (its indirect map is gone) - or a horn at
                     # exactly -pi, at rest: ask for the whole block, canary included, to know.
-                    values, full_values = self._check_restart(servo)
-                    if values is None:
+                    whole = self._check_restart(servo)
+                    if whole is None:
                         continue
-                    if full_values:
-                        servo.state = values
-                        servo.health_time = stamp
-                        values = values[:BLOCK.MOTION_FIELDS]
+                    servo.state = whole
+                    servo.health_time = stamp
+                    values = whole[:BLOCK.MOTION_FIELDS]
                 elif full and values[IDX_CANARY] == 0:
                     servo.fresh = False
                     self._recover_restart(servo)
@@ -463,8 +468,13 @@ class Manager:
                 self.warn_throttled(f'read:{servo.name}',
                                     f'joint {servo.name!r}: state read failed: {data}')
 
-    def _check_restart(self, servo: Servo) -> Tuple[Optional[Tuple[int, ...]], bool]:
-        """Read the whole block of a servo whose motion read was all zeros; restore if needed."""
+    def _check_restart(self, servo: Servo) -> Optional[Tuple[int, ...]]:
+        """
+        Read the whole block of a servo whose motion read was all zeros.
+
+        Returns the block when the servo did not restart; None when it did (it is then
+        restored) or when it did not answer.
+        """
         assert self.bus is not None
         try:
             values = BLOCK.decode(self.bus.read(servo.servo_id, BLOCK.read_address, BLOCK.size))
@@ -472,12 +482,12 @@ class Manager:
             raise
         except BusError:
             servo.fresh = False
-            return None, False
+            return None
         if values[IDX_CANARY] == 0:
             servo.fresh = False
             self._recover_restart(servo)
-            return None, False
-        return values, True
+            return None
+        return values
 
     def _retry_failed(self, results: Dict[int, Any], length: int, until: float) -> None:
         assert self.bus is not None
@@ -814,7 +824,7 @@ class Manager:
                     if enable:
                         self._hold_and_enable(servo)
                     else:
-                        self.bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
+                        self._open_bus().write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
             except BusError as exc:
                 return Result(False, f'torque {"on" if enable else "off"} failed: {exc}')
             return Result(True, f'torque {"on" if enable else "off"} for '
@@ -847,9 +857,10 @@ class Manager:
                         servo.switching = True
                         for goals in self._pending.values():
                             goals.pop(servo.servo_id, None)
-                    self.bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
-                    self.bus.write_item(servo.servo_id, ct.BY_NAME['operating_mode'],
-                                        ct.OPERATING_MODES[mode])
+                    bus = self._open_bus()
+                    bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
+                    bus.write_item(servo.servo_id, ct.BY_NAME['operating_mode'],
+                                   ct.OPERATING_MODES[mode])
                     servo.mode = mode
                     servo.goal_raw.clear()
                     if mode == 'position':
@@ -940,7 +951,7 @@ class Manager:
             if item is None:
                 return None, reason
             try:
-                value = self.bus.read_item(servos[0].servo_id, item)
+                value = self._open_bus().read_item(servos[0].servo_id, item)
             except BusError as exc:
                 return None, str(exc)
             return value, f'{name}.{item.name} (address {item.address}) = {value}'
@@ -966,12 +977,13 @@ class Manager:
                 return Result(False, str(exc))
             try:
                 if item.area == 'eeprom':
-                    torque = self.bus.read_item(servo.servo_id, ct.BY_NAME['torque_enable'])
+                    torque = self._open_bus().read_item(servo.servo_id,
+                                                        ct.BY_NAME['torque_enable'])
                     if torque:
                         return Result(False, f'{item.name} is in EEPROM, which the servo locks '
                                       'while torque is on: call set_torque with enable=false '
                                       'first')
-                self.bus.write_item(servo.servo_id, item, value)
+                self._open_bus().write_item(servo.servo_id, item, value)
             except StatusError as exc:
                 return Result(False, str(exc))
             except BusError as exc:

@@ -211,7 +211,7 @@ class StateBlock:
 
     def indirect_map(self) -> list[int]:
         """Return the target address of each indirect byte, in order (one per block byte)."""
-        targets = []
+        targets: list[int] = []
         for field in self.fields:
             base = ct.BY_NAME[field.name].address
             targets.extend(base + k for k in range(field.size))

@@ -32,7 +32,7 @@ the latched hardware errors.  Choices where the manual is silent (all documented
 """
 
 import struct
-from typing import Protocol
+from typing import Callable, Protocol
 
 from dxl_servo_driver.control_table import BAUD_RATES, BY_NAME
 from dxl_servo_driver.protocol import (
@@ -73,6 +73,12 @@ class Dynamics(Protocol):
 
     def reset_controllers(self) -> None:
         """Reset integrators and profile state."""
+
+    def set_load(self, load_nm: float) -> None:
+        """Set the resisting torque at the horn."""
+
+    def set_input_voltage(self, volts: float) -> None:
+        """Set the supply voltage."""
 
 
 class SimServo:
@@ -415,7 +421,7 @@ def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]] | None:
     return records
 
 
-_HANDLERS = {
+_HANDLERS: dict[int, Callable[[SimServo, int, bool, bytes, float], 'bytes | None']] = {
     Instruction.PING: SimServo._ping,
     Instruction.READ: SimServo._read,
     Instruction.WRITE: SimServo._write,

@@ -1,0 +1,17 @@
+"""mypy over the layers below the node (STYLE.md: the pure layers are type-annotated)."""
+
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+CHECKED = ['model.py', 'config.py', 'control_table.py', 'protocol.py', 'manager.py', 'bus.py',
+           'scan.py', 'sim']
+
+
+def test_the_layers_below_the_node_type_check() -> None:
+    api = pytest.importorskip('mypy.api')
+    paths = [str(ROOT / 'dxl_servo_driver' / name) for name in CHECKED]
+    out, err, status = api.run(['--ignore-missing-imports', '--no-error-summary',
+                                '--cache-dir', '/dev/null', *paths])
+    assert status == 0, out + err
