@@ -124,14 +124,15 @@ class Collector(Generic[M]):
                 self._cond.wait(remaining)
 
 
-def new_context() -> Context:
+def new_context(domain_id: Optional[int] = None) -> Context:
     """
-    Return an initialised private rclpy Context.
+    Return an initialised private rclpy Context (in its own DDS domain when given).
 
     External-library logging (the log files under ~/.ros/log) is off: tests leave no files.
     """
     context = Context()
-    rclpy.init(context=context, args=['--ros-args', '--disable-external-lib-logs'])
+    rclpy.init(context=context, args=['--ros-args', '--disable-external-lib-logs'],
+               domain_id=domain_id)
     return context
 
 

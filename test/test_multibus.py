@@ -4,139 +4,32 @@ Two buses, two nodes: the README's form, with the installed executables in names
 Two `virtual_bus` processes on two pseudo-terminals (different ids and baud rates) and two `node`
 processes (`--ros-args -r __ns:=/left` and `/right`, each with its params file). A client in this
 process checks that each namespace publishes its own joints and that a command to one namespace
-reaches only that bus (seen through virtual_bus's `get ID NAME` control line). Every process is
-stopped with SIGINT and waited for; every file is removed.
+reaches only that bus (seen through virtual_bus's `get ID NAME` control line). Every node is
+stopped with SIGINT, every process is waited for; every file is removed.
 """
 
 import math
 import os
 import pathlib
-import queue
-import re
 import signal
-import subprocess
-import sys
 import tempfile
-import threading
 import time
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Dict, Iterator, List
 
-from ament_index_python.packages import get_package_prefix
 from node_harness import Client, new_context
+from processes import (
+    EXIT_TIMEOUT_S, fresh_domain_id, NodeProcess, params_yaml, START_TIMEOUT_S,
+    VirtualBusProcess)
 import pytest
 import rclpy
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-START_TIMEOUT_S = 30.0   # two Python + ROS processes start side by side on 2 busy cores
-EXIT_TIMEOUT_S = 10.0
 RAD_PER_PULSE = 2.0 * math.pi / 4096.0
 
 
-def node_executable() -> str:
-    """Return the node's path the way `ros2 run` finds it: <prefix>/lib/<package>/<exe>."""
-    path = os.path.join(get_package_prefix('dxl_servo_driver'), 'lib', 'dxl_servo_driver',
-                        'node')
-    assert os.access(path, os.X_OK), f'{path} is not an executable (colcon build first)'
-    return path
-
-
-def stop(proc: 'subprocess.Popen[Any]', timeout_s: float = EXIT_TIMEOUT_S) -> Optional[int]:
-    """SIGINT and wait; SIGKILL if it does not exit. Return the exit code of the SIGINT."""
-    if proc.poll() is not None:
-        return proc.returncode
-    proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        return None
-
-
-class Bus:
-    """A virtual_bus process: its device and its control lines."""
-
-    def __init__(self, ids: List[int], baud: int, link: str) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus', '--ids',
-             *[str(i) for i in ids], '--baud', str(baud), '--link', link],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-            text=True, cwd=str(ROOT))
-        self._lines: 'queue.Queue[Optional[str]]' = queue.Queue()
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-        try:
-            self.device = self.line(START_TIMEOUT_S)
-        except BaseException:
-            self.close()
-            raise
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._lines.put(line.rstrip('\n'))
-        self._lines.put(None)
-
-    def line(self, timeout_s: float = 5.0) -> str:
-        try:
-            line = self._lines.get(timeout=timeout_s)
-        except queue.Empty:
-            raise AssertionError(f'virtual_bus said nothing within {timeout_s} s') from None
-        assert line is not None, 'virtual_bus ended'
-        return line
-
-    def get(self, servo_id: int, register: str) -> int:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(f'get {servo_id} {register}\n')
-        self.proc.stdin.flush()
-        answer = self.line()
-        match = re.fullmatch(rf'ok get {servo_id} {register}=(-?\d+)', answer)
-        assert match, answer
-        return int(match.group(1))
-
-    def close(self) -> None:
-        stop(self.proc)
-        for stream in (self.proc.stdin, self.proc.stdout):
-            if stream is not None:
-                try:
-                    stream.close()
-                except OSError:
-                    pass
-        self._reader.join(timeout=5.0)
-
-
-class Node:
-    """The installed node executable in a namespace, with its own params file and output."""
-
-    def __init__(self, workdir: pathlib.Path, namespace: str, params_yaml: str) -> None:
-        tag = namespace.strip('/')
-        params = workdir / f'{tag}.yaml'
-        params.write_text(params_yaml)
-        self.output_path = workdir / f'{tag}_output.txt'
-        env = dict(os.environ)
-        env['ROS_LOG_DIR'] = str(workdir / f'{tag}_ros_log')
-        env['PYTHONUNBUFFERED'] = '1'
-        with open(self.output_path, 'w') as output:
-            self.proc = subprocess.Popen(
-                [node_executable(), '--ros-args', '-r', f'__ns:={namespace}', '--params-file',
-                 str(params)],
-                stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, env=env,
-                cwd=str(workdir))
-
-    def output(self) -> str:
-        return self.output_path.read_text(errors='replace')
-
-    def alive(self) -> None:
-        assert self.proc.poll() is None, (
-            f'the node exited with {self.proc.returncode}:\n{self.output()}')
-
-
-def params_yaml(port: str, baud: int, joints: Dict[str, int]) -> str:
-    lines = ['/**:', '  ros__parameters:', f'    port: "{port}"', f'    baud_rate: {baud}',
-             '    loop_rate: 50.0', f'    joints: [{", ".join(joints)}]']
-    for name, servo_id in joints.items():
-        lines += [f'    {name}:', f'      id: {servo_id}', '      operating_mode: position']
-    return '\n'.join(lines) + '\n'
+def joint_params(joints: Dict[str, int]) -> Dict[str, Dict[str, object]]:
+    """Return params_yaml's joints: each name with its id, in position mode."""
+    return {name: {'id': servo_id, 'operating_mode': 'position'}
+            for name, servo_id in joints.items()}
 
 
 @pytest.fixture
@@ -150,35 +43,31 @@ RIGHT = {'r_shoulder': 11}
 
 
 def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
-    buses: List[Bus] = []
-    nodes: List[Node] = []
+    buses: List[VirtualBusProcess] = []
+    nodes: List[NodeProcess] = []
     clients: List[Client] = []
-    context = new_context()
+    domain_id = fresh_domain_id()
+    context = new_context(domain_id)
     try:
-        left_bus = Bus(list(LEFT.values()), 1000000, str(workdir / 'ttyLEFT'))
+        left_bus = VirtualBusProcess(list(LEFT.values()), 1000000, workdir / 'ttyLEFT')
         buses.append(left_bus)
-        right_bus = Bus(list(RIGHT.values()), 115200, str(workdir / 'ttyRIGHT'))
+        right_bus = VirtualBusProcess(list(RIGHT.values()), 115200, workdir / 'ttyRIGHT')
         buses.append(right_bus)
-        left = Node(workdir, '/left', params_yaml(str(workdir / 'ttyLEFT'), 1000000, LEFT))
+        left = NodeProcess(workdir, params_yaml(str(workdir / 'ttyLEFT'), joint_params(LEFT),
+                                                baud_rate=1000000), '/left', domain_id)
         nodes.append(left)
-        right = Node(workdir, '/right',
-                     params_yaml(str(workdir / 'ttyRIGHT'), 115200, RIGHT))
+        right = NodeProcess(workdir, params_yaml(str(workdir / 'ttyRIGHT'), joint_params(RIGHT),
+                                                 baud_rate=115200), '/right', domain_id)
         nodes.append(right)
         left_client = Client(context, namespace='/left')
         clients.append(left_client)
         right_client = Client(context, namespace='/right')
         clients.append(right_client)
 
-        deadline = time.monotonic() + START_TIMEOUT_S
+        deadline = time.monotonic() + START_TIMEOUT_S   # for both: they start side by side
         for client, joints, node in ((left_client, LEFT, left), (right_client, RIGHT, right)):
-            while True:
-                node.alive()
-                try:
-                    msg = client.joint_states.wait(
-                        lambda m: len(m.name) == len(joints), timeout_s=0.5, fresh=False)
-                    break
-                except AssertionError:
-                    assert time.monotonic() < deadline, f'no joint_states:\n{node.output()}'
+            msg = node.wait_message(client.joint_states, lambda m: len(m.name) == len(joints),
+                                    deadline - time.monotonic())
             assert list(msg.name) == list(joints)
         # Each namespace publishes only its own joints.
         for client, joints in ((left_client, LEFT), (right_client, RIGHT)):
@@ -207,10 +96,7 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
             node.alive()
             node.proc.send_signal(signal.SIGINT)
         for node in nodes:
-            try:
-                code = node.proc.wait(EXIT_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                raise AssertionError(f'no exit after SIGINT:\n{node.output()}') from None
+            code = node.wait(EXIT_TIMEOUT_S)
             assert code == 0, node.output()
             assert 'Traceback' not in node.output(), node.output()
         assert left_bus.get(1, 'torque_enable') == 0 and right_bus.get(11, 'torque_enable') == 0
@@ -219,8 +105,9 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
             client.close()
         rclpy.try_shutdown(context=context)
         for node in nodes:
-            stop(node.proc)
+            node.stop()
         for bus in buses:
-            bus.close()
+            bus.stop()
+    assert not any(bus.left_link for bus in buses)
     assert not os.path.lexists(workdir / 'ttyLEFT')
     assert not os.path.lexists(workdir / 'ttyRIGHT')

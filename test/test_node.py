@@ -72,11 +72,8 @@ def goal_raw(kind: str, value: float) -> int:
 
 @pytest.fixture
 def h() -> Iterator[NodeHarness]:
-    harness = NodeHarness(sim_params(JOINTS))
-    try:
+    with NodeHarness(sim_params(JOINTS)) as harness:
         yield harness
-    finally:
-        harness.close()
 
 
 def goals(h: NodeHarness, ids: Sequence[int]) -> Dict[Tuple[int, str], int]:
@@ -377,11 +374,8 @@ REFUSAL_IDS_TEXT = [case[0] for case in REFUSALS]
 
 @pytest.fixture
 def rh() -> Iterator[NodeHarness]:
-    harness = NodeHarness(sim_params(REFUSAL_JOINTS))
-    try:
+    with NodeHarness(sim_params(REFUSAL_JOINTS)) as harness:
         yield harness
-    finally:
-        harness.close()
 
 
 MARKER_VALUE = {'position': 0.3, 'velocity': 0.4, 'current': 0.05, 'pwm': 0.2}

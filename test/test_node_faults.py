@@ -92,11 +92,8 @@ PORT_JOINTS: Dict[str, Dict[str, Any]] = {
 
 @pytest.fixture
 def ph() -> Iterator[NodeHarness]:
-    harness = NodeHarness(sim_params(PORT_JOINTS))
-    try:
+    with NodeHarness(sim_params(PORT_JOINTS)) as harness:
         yield harness
-    finally:
-        harness.close()
 
 
 def test_port_lost_and_back(ph: NodeHarness) -> None:

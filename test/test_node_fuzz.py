@@ -439,11 +439,8 @@ class Fuzzer:
 
 @pytest.fixture
 def h() -> Iterator[NodeHarness]:
-    harness = NodeHarness(sim_params(JOINTS))
-    try:
+    with NodeHarness(sim_params(JOINTS)) as harness:
         yield harness
-    finally:
-        harness.close()
 
 
 def test_random_storm_of_commands_and_requests(h: NodeHarness) -> None:

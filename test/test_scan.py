@@ -1,22 +1,17 @@
 """`scan` against virtual_bus subprocesses on pseudo-terminals, and its pure helpers."""
 
+import itertools
 import os
 import pathlib
-import queue
-import signal
-import subprocess
-import sys
-import threading
-from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import config, scan
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.bus import Bus, BusError, open_port
+from processes import StartVirtualBus, VirtualBusProcess
 import pytest
 import yaml
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-LINE_TIMEOUT_S = 10.0  # generous: a busy machine may be slow to start Python
 # Tests that expect replies give each one plenty of time: a loaded machine may not schedule the
 # virtual_bus process at once. Nothing here measures time.
 SLOW_MACHINE_TIMEOUT_MS = '200'
@@ -24,71 +19,14 @@ XM430_LINE = 'id {id}: model 1030 (XM430-class), firmware 45, {baud} bps, mode {
              'hardware errors: {errors}'
 
 
-class VirtualBus:
-    """A virtual_bus subprocess: its device (via a link), its control lines."""
-
-    def __init__(self, ids: List[int], baud_bps: int, link: pathlib.Path) -> None:
-        self.link = link
-        self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus', '--ids',
-             *[str(i) for i in ids], '--baud', str(baud_bps), '--link', str(link)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            cwd=str(ROOT))
-        self._lines: 'queue.Queue[Optional[str]]' = queue.Queue()
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-        device = self._lines.get(timeout=LINE_TIMEOUT_S)
-        assert device is not None and device.startswith('/dev/'), device
-        assert os.readlink(link) == device
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._lines.put(line.rstrip('\n'))
-        self._lines.put(None)
-
-    def command(self, text: str) -> Optional[str]:
-        """Send one control line; return its answer."""
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(text + '\n')
-        self.proc.stdin.flush()
-        return self._lines.get(timeout=LINE_TIMEOUT_S)
-
-    def stop(self) -> None:
-        """Stop and reap the process, close its pipes, remove the link if still there."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        for stream in (self.proc.stdin, self.proc.stderr):
-            if stream is not None:
-                stream.close()
-        self._reader.join(timeout=5.0)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        if os.path.islink(self.link):
-            os.unlink(self.link)
-
-
-Starter = Callable[[List[int], int], VirtualBus]
+Starter = Callable[[List[int], int], VirtualBusProcess]
 
 
 @pytest.fixture
-def start(tmp_path: pathlib.Path) -> Iterator[Starter]:
-    """Start virtual_bus instances; all are stopped, and their links removed, at the end."""
-    started: List[VirtualBus] = []
-
-    def _start(ids: List[int], baud_bps: int) -> VirtualBus:
-        vb = VirtualBus(ids, baud_bps, tmp_path / f'ttyDXL{len(started)}')
-        started.append(vb)
-        return vb
-
-    yield _start
-    for vb in started:
-        vb.stop()
+def start(virtual_bus: StartVirtualBus, tmp_path: pathlib.Path) -> Starter:
+    """Start virtual_bus instances, each on its own link in tmp_path (stopped by virtual_bus)."""
+    links = (tmp_path / f'ttyDXL{n}' for n in itertools.count())
+    return lambda ids, baud_bps: virtual_bus(ids, baud_bps, next(links))
 
 
 def run_scan(capsys: pytest.CaptureFixture, *args: str) -> Tuple[int, List[str], List[str]]:
@@ -149,7 +87,7 @@ def test_servos_at_57600_are_found_with_every_field(start: Starter,
 def test_an_injected_hardware_error_is_shown_decoded(start: Starter,
                                                      capsys: pytest.CaptureFixture) -> None:
     vb = start([1, 2], 57600)
-    answer = vb.command('error 2 overload')
+    answer = vb.control('error 2 overload')
     assert answer is not None and answer.startswith('ok'), answer
     status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
                               '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
@@ -174,7 +112,7 @@ def test_ids_restrict_the_scan_to_those_ids_at_every_baud(start: Starter,
 def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
         start: Starter, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path) -> None:
     vb = start([1, 2, 3], 57600)
-    device = os.readlink(vb.link)
+    device = vb.device
     mode = ct.BY_NAME['operating_mode']
     baud = ct.BY_NAME['baud_rate']
 
@@ -212,7 +150,7 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
                                                   tmp_path: pathlib.Path) -> None:
     vb = start([4, 9], 1_000_000)
     mode = ct.BY_NAME['operating_mode']
-    with_bus(os.readlink(vb.link), 1_000_000, lambda bus: retried(
+    with_bus(vb.device, 1_000_000, lambda bus: retried(
         lambda: bus.write_item(9, mode, ct.OPERATING_MODES['current_based_position'])))
     output = tmp_path / 'bus.yaml'
     status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '1000000', '--output',

@@ -3,50 +3,12 @@
 import math
 
 from dxl_servo_driver.sim import motor
-from dxl_servo_driver.sim.dynamics import ServoDynamics
-from dxl_servo_driver.sim.memory import Memory
 import pytest
+from sim_rig import Rig
 
 # (volts, no-load rpm, stall torque N m, stall current A) from the seed's datasheet
 DATASHEET = [(11.1, 43.0, 3.8, 2.1), (12.0, 46.0, 4.1, 2.3), (14.8, 57.0, 4.8, 2.7)]
 TOLERANCE = 0.05
-
-
-class Rig:
-    """A real control-table memory plus the dynamics, with the servo's write side effects."""
-
-    def __init__(self, mode: int = 3, volts: float = 12.0, start_pulse: float = 2048.0) -> None:
-        self.mem = Memory()
-        self.dyn = ServoDynamics(input_voltage_v=volts, start_position_pulse=start_pulse)
-        self.mem.set('operating_mode', mode)
-        self.dyn.reinit_present_position(self.mem)
-        self.mem.set('goal_position', self.mem.get('present_position'))
-        self.dyn.advance(0.0, self.mem)
-
-    def write(self, **values: int) -> None:
-        """Write registers the way the servo does, then call the hooks it calls."""
-        old_torque = self.mem.get('torque_enable')
-        for name, value in values.items():
-            self.mem.set(name, value)
-        torque = self.mem.get('torque_enable')
-        if 'torque_enable' in values and torque != old_torque:
-            if torque:
-                self.dyn.reinit_present_position(self.mem)
-            self.dyn.on_torque(bool(torque), self.mem)
-        if 'goal_position' in values:
-            self.dyn.on_goal_position(self.mem)
-        if 'goal_velocity' in values:
-            self.dyn.on_goal_velocity(self.mem)
-
-    def run(self, seconds: float, dt_s: float = 0.001) -> int:
-        """Advance in dt_s calls; return the OR of the reported error bits."""
-        errors = 0
-        for _ in range(int(round(seconds / dt_s))):
-            errors |= self.dyn.advance(dt_s, self.mem)
-        return errors
-
-    def reg(self, name: str) -> int:
-        return self.mem.get(name)
 
 
 def rpm(velocity_raw: int) -> float:
@@ -177,7 +139,7 @@ def test_overheat_trips_under_stall_after_long_advance() -> None:
 
 
 def test_idle_temperature_settles_to_standby_heating() -> None:
-    rig = Rig()
+    rig = Rig(mode=3)
     rig.dyn.advance(3600.0, rig.mem)
     assert rig.reg('present_temperature') == round(25.0 + 4.0 * 0.040 * 12.0)
 
@@ -212,14 +174,14 @@ def test_following_error_when_load_stops_a_profile() -> None:
 
 @pytest.mark.parametrize('volts, expected', [(12.0, 0), (9.0, 0x01), (16.5, 0x01), (9.5, 0)])
 def test_input_voltage_condition(volts: float, expected: int) -> None:
-    rig = Rig()
+    rig = Rig(mode=3)
     rig.dyn.set_input_voltage(volts)
     assert rig.dyn.advance(0.01, rig.mem) & 0x01 == expected
     assert rig.reg('present_input_voltage') == round(volts * 10)
 
 
 def test_voltage_limits_come_from_registers() -> None:
-    rig = Rig()
+    rig = Rig(mode=3)
     rig.write(min_voltage_limit=125)
     assert rig.dyn.advance(0.01, rig.mem) & 0x01
 

@@ -2,49 +2,16 @@
 
 import math
 
-from dxl_servo_driver.sim.dynamics import ServoDynamics
-from dxl_servo_driver.sim.memory import Memory
 from dxl_servo_driver.sim.velocity_profile import (
     classify, plan_position, PROFILE_RECTANGULAR, PROFILE_STEP, PROFILE_TRAPEZOIDAL,
     PROFILE_TRIANGULAR, ramp_velocity, travel_time_ms)
 from hypothesis import given, settings, strategies as st
 import pytest
+from sim_rig import Rig
 
 velocities = st.integers(min_value=1, max_value=1023)
 accelerations = st.integers(min_value=1, max_value=32767)
 distances = st.integers(min_value=-1_000_000, max_value=1_000_000).filter(lambda d: d != 0)
-
-
-class Rig:
-    """A real control-table memory plus the dynamics, with the servo's write side effects."""
-
-    def __init__(self, mode: int = 4) -> None:
-        self.mem = Memory()
-        self.dyn = ServoDynamics()
-        self.mem.set('operating_mode', mode)
-        self.dyn.reinit_present_position(self.mem)
-        self.mem.set('goal_position', self.mem.get('present_position'))
-        self.dyn.advance(0.0, self.mem)
-
-    def write(self, **values: int) -> None:
-        """Write registers, then call the hooks the servo calls."""
-        old_torque = self.mem.get('torque_enable')
-        for name, value in values.items():
-            self.mem.set(name, value)
-        if 'torque_enable' in values and self.mem.get('torque_enable') != old_torque:
-            if self.mem.get('torque_enable'):
-                self.dyn.reinit_present_position(self.mem)
-            self.dyn.on_torque(bool(self.mem.get('torque_enable')), self.mem)
-        if 'goal_position' in values:
-            self.dyn.on_goal_position(self.mem)
-        if 'goal_velocity' in values:
-            self.dyn.on_goal_velocity(self.mem)
-
-    def step(self) -> None:
-        self.dyn.advance(0.001, self.mem)
-
-    def reg(self, name: str) -> int:
-        return self.mem.get(name)
 
 
 # ---------------------------------------------------------------------------- pure profiles
@@ -128,7 +95,7 @@ def test_velocity_ramp_takes_t1(start: int, target: int, a_raw: int) -> None:
     (60, 0, 600, 0x10),
 ])
 def test_move_reaches_goal_in_t3(v_raw: int, a_raw: int, delta: int, kind: int) -> None:
-    rig = Rig()
+    rig = Rig(mode=4)
     start = rig.reg('present_position')
     rig.write(torque_enable=1, profile_velocity=v_raw, profile_acceleration=a_raw)
     rig.write(goal_position=start + delta)
@@ -154,7 +121,7 @@ def test_move_reaches_goal_in_t3(v_raw: int, a_raw: int, delta: int, kind: int) 
 
 
 def test_step_move() -> None:
-    rig = Rig()
+    rig = Rig(mode=4)
     start = rig.reg('present_position')
     rig.write(torque_enable=1)
     rig.write(goal_position=start + 1000)
@@ -172,7 +139,7 @@ def test_step_move() -> None:
 
 
 def test_velocity_override_is_continuous() -> None:
-    rig = Rig()
+    rig = Rig(mode=4)
     start = rig.reg('present_position')
     rig.write(torque_enable=1, profile_velocity=100, profile_acceleration=20)
     rig.write(goal_position=start + 3000)

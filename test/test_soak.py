@@ -73,11 +73,8 @@ class LogWatch:
 def h() -> Iterator[NodeHarness]:
     params = sim_params(JOINTS)
     params.pop('loop_rate')   # the node's default rate
-    harness = NodeHarness(params)
-    try:
+    with NodeHarness(params) as harness:
         yield harness
-    finally:
-        harness.close()
 
 
 @pytest.mark.soak

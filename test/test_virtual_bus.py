@@ -2,22 +2,18 @@
 
 import os
 import pathlib
-import queue
 import signal
 import subprocess
-import sys
-import threading
 import time
 from typing import Callable, Iterator, TypeVar
 
 from dxl_servo_driver import control_table, protocol
 from dxl_servo_driver.sim.timing import byte_time_s
 import dynamixel_sdk as sdk
+from processes import LINE_TIMEOUT_S, StartVirtualBus, VirtualBusProcess
 import pytest
 import serial
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-LINE_TIMEOUT_S = 10.0  # generous: a busy CI machine may be slow to start Python
 ADDR_PROFILE_ACCELERATION = control_table.lookup('profile_acceleration').address
 ADDR_ID = control_table.lookup('id').address
 ADDR_MODEL_NUMBER = control_table.lookup('model_number').address
@@ -43,77 +39,13 @@ def retried(call: Callable[[], T], attempts: int = 5) -> T:
     return outcome
 
 
-class VirtualBus:
-    """A virtual_bus subprocess with line-wise access to its stdout and stdin."""
-
-    def __init__(self, args: list[str], stdin: int | None = subprocess.PIPE) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus', *args],
-            stdin=stdin, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            cwd=str(ROOT))
-        self._lines: queue.Queue[str | None] = queue.Queue()
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self._lines.put(line.rstrip('\n'))
-        self._lines.put(None)
-
-    def next_line(self, timeout_s: float = LINE_TIMEOUT_S) -> str | None:
-        """Return the next stdout line (None at EOF)."""
-        return self._lines.get(timeout=timeout_s)
-
-    def command(self, text: str) -> str | None:
-        """Send one control line; return its answer."""
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(text + '\n')
-        self.proc.stdin.flush()
-        return self.next_line()
-
-    def stop(self, sig: int = signal.SIGTERM) -> int:
-        """Signal the server and wait for it; kill it if it hangs."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        for stream in (self.proc.stdin, self.proc.stderr):
-            if stream is not None:
-                stream.close()
-        self._reader.join(timeout=5.0)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        return self.proc.returncode
-
-
-Starter = Callable[..., VirtualBus]
-
-
 @pytest.fixture
-def start() -> Iterator[Starter]:
-    """Start virtual_bus instances; every one is stopped and reaped at the end."""
-    started: list[VirtualBus] = []
-
-    def _start(*args: str, stdin: int | None = subprocess.PIPE) -> VirtualBus:
-        vb = VirtualBus(list(args), stdin=stdin)
-        started.append(vb)
-        return vb
-
-    yield _start
-    for vb in started:
-        vb.stop()
-
-
-@pytest.fixture
-def bus3(start: Starter, tmp_path: pathlib.Path) -> Iterator[tuple[VirtualBus, str]]:
+def bus3(virtual_bus: StartVirtualBus,
+         tmp_path: pathlib.Path) -> Iterator[tuple[VirtualBusProcess, str]]:
     """Servos 1, 2, 3 at 1 Mbps behind a link; yields (server, link path)."""
     link = str(tmp_path / 'ttyDXL')
-    vb = start('--ids', '1', '2', '3', '--baud', '1000000', '--link', link, '--seed', '5')
-    device = vb.next_line()
+    vb = virtual_bus([1, 2, 3], 1_000_000, link, ['--seed', '5'])
+    device = vb.device
     assert device is not None and device.startswith('/dev/')
     assert os.readlink(link) == device
     yield vb, link
@@ -131,7 +63,7 @@ def open_sdk_port(path: str, baud_bps: int) -> sdk.PortHandler:
     return port
 
 
-def test_sdk_ping_read_write_over_the_pty(bus3: tuple[VirtualBus, str],
+def test_sdk_ping_read_write_over_the_pty(bus3: tuple[VirtualBusProcess, str],
                                           handler: sdk.Protocol2PacketHandler) -> None:
     _, link = bus3
     port = open_sdk_port(link, 1_000_000)
@@ -149,7 +81,7 @@ def test_sdk_ping_read_write_over_the_pty(bus3: tuple[VirtualBus, str],
         port.closePort()
 
 
-def test_sdk_sync_write_sync_read_and_bulk_read(bus3: tuple[VirtualBus, str],
+def test_sdk_sync_write_sync_read_and_bulk_read(bus3: tuple[VirtualBusProcess, str],
                                                 handler: sdk.Protocol2PacketHandler) -> None:
     _, link = bus3
     port = open_sdk_port(link, 1_000_000)
@@ -178,7 +110,7 @@ def test_sdk_sync_write_sync_read_and_bulk_read(bus3: tuple[VirtualBus, str],
         port.closePort()
 
 
-def test_client_at_another_baud_gets_no_answer(bus3: tuple[VirtualBus, str],
+def test_client_at_another_baud_gets_no_answer(bus3: tuple[VirtualBusProcess, str],
                                                handler: sdk.Protocol2PacketHandler) -> None:
     _, link = bus3
     port = open_sdk_port(link, 57600)
@@ -190,7 +122,7 @@ def test_client_at_another_baud_gets_no_answer(bus3: tuple[VirtualBus, str],
         port.closePort()
 
 
-def test_client_reopening_the_port_is_served_again(bus3: tuple[VirtualBus, str],
+def test_client_reopening_the_port_is_served_again(bus3: tuple[VirtualBusProcess, str],
                                                    handler: sdk.Protocol2PacketHandler) -> None:
     _, link = bus3
     for _ in range(2):
@@ -201,9 +133,9 @@ def test_client_reopening_the_port_is_served_again(bus3: tuple[VirtualBus, str],
             port.closePort()
 
 
-def test_custom_baud_4_5_mbps_through_termios2(start: Starter, tmp_path: pathlib.Path) -> None:
-    vb = start('--ids', '7', '--baud', '4500000')
-    device = vb.next_line()
+def test_custom_baud_4_5_mbps_through_termios2(virtual_bus: StartVirtualBus) -> None:
+    vb = virtual_bus([7], 4_500_000)
+    device = vb.device
     assert device is not None
     ping = protocol.encode_instruction(7, protocol.Instruction.PING)
     # pyserial sets 4.5 Mbps through TCSETS2/BOTHER (not a standard termios speed)
@@ -219,63 +151,64 @@ def test_custom_baud_4_5_mbps_through_termios2(start: Starter, tmp_path: pathlib
         assert ser.read(14) == b''
 
 
-def test_control_lines(bus3: tuple[VirtualBus, str],
+def test_control_lines(bus3: tuple[VirtualBusProcess, str],
                        handler: sdk.Protocol2PacketHandler) -> None:
     vb, link = bus3
-    assert vb.command('get 2 id') == 'ok get 2 id=2'
-    assert vb.command('get 1 8') == 'ok get 1 baud_rate=3'
-    dump = vb.command('dump 3')
+    assert vb.control('get 2 id') == 'ok get 2 id=2'
+    assert vb.control('get 1 8') == 'ok get 1 baud_rate=3'
+    dump = vb.control('dump 3')
     assert dump is not None and dump.startswith('ok dump 3 ') and ' id=3 ' in dump
-    assert vb.command('nonsense 1 2') == 'error: unknown command \'nonsense\' (try "help")'
-    assert vb.command('drop 1 2.0') == "error: bad probability '2.0': expected 0..1"
-    assert (vb.command('get 9 id') or '').startswith('error: ')
-    help_line = vb.command('help')
+    assert vb.control('nonsense 1 2') == 'error: unknown command \'nonsense\' (try "help")'
+    assert vb.control('drop 1 2.0') == "error: bad probability '2.0': expected 0..1"
+    assert vb.control('get 9 id').startswith('error: ')
+    help_line = vb.control('help')
     assert help_line is not None and help_line.startswith('ok commands:')
 
     port = open_sdk_port(link, 1_000_000)
     try:
-        assert vb.command('drop 1 1.0') == 'ok drop 1 1'
+        assert vb.control('drop 1 1.0') == 'ok drop 1 1'
         assert handler.ping(port, 1)[1] == sdk.COMM_RX_TIMEOUT
         assert retried(lambda: handler.ping(port, 2))[1] == sdk.COMM_SUCCESS
-        assert vb.command('drop 1 0') == 'ok drop 1 0'
+        assert vb.control('drop 1 0') == 'ok drop 1 0'
         assert retried(lambda: handler.ping(port, 1))[1] == sdk.COMM_SUCCESS
 
-        assert vb.command('unplug 2') == 'ok unplug 2'
+        assert vb.control('unplug 2') == 'ok unplug 2'
         assert handler.ping(port, 2)[1] == sdk.COMM_RX_TIMEOUT
-        assert vb.command('plug 2') == 'ok plug 2'
+        assert vb.control('plug 2') == 'ok plug 2'
         deadline_s = time.monotonic() + 5.0  # the servo boots before it answers again
         while handler.ping(port, 2)[1] != sdk.COMM_SUCCESS:
             assert time.monotonic() < deadline_s, 'servo 2 never came back after plug'
 
-        assert vb.command('error 3 overload') == 'ok error 3 overload'
+        assert vb.control('error 3 overload') == 'ok error 3 overload'
         _, result, error = retried(lambda: handler.ping(port, 3))
         assert result == sdk.COMM_SUCCESS and error & protocol.ALERT_BIT
     finally:
         port.closePort()
-    stats = vb.command('stats')
+    stats = vb.control('stats')
     assert stats is not None and stats.startswith('ok stats replies=')
     fields = dict(token.split('=') for token in stats.split()[2:])
     assert set(fields) == {'replies', 'late_p50_us', 'late_p99_us', 'late_max_us'}
     assert int(fields['replies']) >= 4  # the answered pings above
 
 
-def test_binary_garbage_on_stdin_is_one_error_line(start: Starter) -> None:
-    vb = start('--ids', '1')
-    assert vb.next_line() is not None
+def test_binary_garbage_on_stdin_is_one_error_line(virtual_bus: StartVirtualBus) -> None:
+    vb = virtual_bus([1])
+    assert vb.device is not None
     assert vb.proc.stdin is not None
     os.write(vb.proc.stdin.fileno(), b'\xff\xfe\x00 junk\r\n')
     answer = vb.next_line()
     assert answer is not None and answer.startswith('error: unknown command')
-    assert vb.command('get 1 id') == 'ok get 1 id=1'
+    assert vb.control('get 1 id') == 'ok get 1 id=1'
     assert vb.proc.poll() is None
 
 
-def test_wire_timing_paces_replies(start: Starter, handler: sdk.Protocol2PacketHandler) -> None:
-    vb = start('--ids', '1', '--baud', '57600', '--timing', 'wire', '--latency-ms', '2',
-               '--return-delay-time', '100')
-    device = vb.next_line()
+def test_wire_timing_paces_replies(virtual_bus: StartVirtualBus,
+                                   handler: sdk.Protocol2PacketHandler) -> None:
+    vb = virtual_bus([1], 57600, extra_args=['--timing', 'wire', '--latency-ms', '2',
+                                             '--return-delay-time', '100'])
+    device = vb.device
     assert device is not None
-    assert vb.command('get 1 return_delay_time') == 'ok get 1 return_delay_time=100'
+    assert vb.control('get 1 return_delay_time') == 'ok get 1 return_delay_time=100'
     port = open_sdk_port(device, 57600)
     try:
         minimum_s = 24 * byte_time_s(57600) + 100 * 2e-6 + 0.002
@@ -285,15 +218,15 @@ def test_wire_timing_paces_replies(start: Starter, handler: sdk.Protocol2PacketH
             assert time.monotonic() - start_s >= minimum_s  # lower bound only
     finally:
         port.closePort()
-    stats = vb.command('stats')
+    stats = vb.control('stats')
     assert stats is not None and stats.startswith('ok stats replies=')
     assert int(stats.split()[2].split('=')[1]) >= 3
 
 
-def test_stdin_at_eof_does_not_stop_the_server(start: Starter,
+def test_stdin_at_eof_does_not_stop_the_server(virtual_bus: StartVirtualBus,
                                                handler: sdk.Protocol2PacketHandler) -> None:
-    vb = start('--ids', '1', '--baud', '1000000', stdin=subprocess.DEVNULL)
-    device = vb.next_line()
+    vb = virtual_bus([1], 1_000_000, stdin=subprocess.DEVNULL)
+    device = vb.device
     assert device is not None
     time.sleep(0.2)  # stdin EOF has been seen by now
     assert vb.proc.poll() is None
@@ -305,44 +238,48 @@ def test_stdin_at_eof_does_not_stop_the_server(start: Starter,
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
-def test_signal_exits_cleanly_and_removes_the_link(start: Starter, tmp_path: pathlib.Path,
-                                                   sig: int) -> None:
+def test_signal_exits_cleanly_and_removes_the_link(virtual_bus: StartVirtualBus,
+                                                   tmp_path: pathlib.Path, sig: int) -> None:
     link = tmp_path / 'ttyDXL'
-    vb = start('--ids', '1', '--link', str(link))
-    device = vb.next_line()
+    vb = virtual_bus([1], link=link)
+    device = vb.device
     assert device is not None and os.readlink(link) == device
     assert vb.stop(sig) == 0
+    assert not vb.left_link   # virtual_bus removed it, not the helper's clean-up
     assert not os.path.lexists(link)
     assert vb.next_line() is None  # nothing else printed
 
 
-def test_link_path_taken_is_refused(start: Starter, tmp_path: pathlib.Path) -> None:
+def test_link_path_taken_is_refused(virtual_bus: StartVirtualBus,
+                                    tmp_path: pathlib.Path) -> None:
     link = tmp_path / 'ttyDXL'
     link.write_text('mine')
-    vb = start('--ids', '1', '--link', str(link))
+    vb = virtual_bus([1], link=link, expect_device=False)
     assert vb.proc.wait(timeout=LINE_TIMEOUT_S) != 0
     assert vb.next_line() is None  # no device path on stdout
-    assert vb.proc.stderr is not None
-    err = vb.proc.stderr.read().splitlines()
+    err = vb.stderr_lines()
     assert len(err) == 1 and 'taken' in err[0] and str(link) in err[0]
     assert link.read_text() == 'mine'
 
 
-def test_symlink_to_something_else_is_refused(start: Starter, tmp_path: pathlib.Path) -> None:
+def test_symlink_to_something_else_is_refused(virtual_bus: StartVirtualBus,
+                                              tmp_path: pathlib.Path) -> None:
     link = tmp_path / 'ttyDXL'
     os.symlink('/dev/null', link)
-    vb = start('--ids', '1', '--link', str(link))
+    vb = virtual_bus([1], link=link, expect_device=False)
     assert vb.proc.wait(timeout=LINE_TIMEOUT_S) != 0
     assert os.readlink(link) == '/dev/null'
 
 
-def test_stale_link_of_ours_is_replaced(start: Starter, tmp_path: pathlib.Path) -> None:
+def test_stale_link_of_ours_is_replaced(virtual_bus: StartVirtualBus,
+                                        tmp_path: pathlib.Path) -> None:
     link = tmp_path / 'ttyDXL'
     os.symlink('/dev/pts/987654', link)  # a pty that no longer exists
-    vb = start('--ids', '1', '--link', str(link))
-    device = vb.next_line()
+    vb = virtual_bus([1], link=link)
+    device = vb.device
     assert device is not None and os.readlink(link) == device
     assert vb.stop() == 0
+    assert not vb.left_link   # virtual_bus removed it, not the helper's clean-up
     assert not os.path.lexists(link)
 
 
@@ -356,10 +293,10 @@ def test_stale_link_of_ours_is_replaced(start: Starter, tmp_path: pathlib.Path) 
     ['--ids', '1', '--latency-ms', '1'],        # latency without wire timing
     ['--ids', '1', '--return-delay-time', '255'],
 ])
-def test_bad_arguments_one_line_and_nonzero_exit(start: Starter, args: list[str]) -> None:
-    vb = start(*args)
+def test_bad_arguments_one_line_and_nonzero_exit(virtual_bus: StartVirtualBus,
+                                                 args: list[str]) -> None:
+    vb = virtual_bus(extra_args=args, expect_device=False)
     assert vb.proc.wait(timeout=LINE_TIMEOUT_S) != 0
     assert vb.next_line() is None
-    assert vb.proc.stderr is not None
-    err = vb.proc.stderr.read().splitlines()
+    err = vb.stderr_lines()
     assert len(err) == 1 and 'error' in err[0]
