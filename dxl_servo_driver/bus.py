@@ -593,17 +593,6 @@ class Bus:
             self.tx_packets += 1
         return len(packet)
 
-    def write_no_reply(self, servo_id: int, address: int, data: bytes) -> None:
-        """Write without waiting for a status (broadcast id, or a servo at status level 0)."""
-        packet = encode_instruction(servo_id, Instruction.WRITE,
-                                    struct.pack('<H', address) + bytes(data))
-        with self.lock:
-            try:
-                self.port.write(packet)
-            except (PortError, OSError) as exc:
-                raise _port_lost(exc) from None
-            self.tx_packets += 1
-
 
 def _port_lost(exc: BaseException) -> PortError:
     # pyserial's SerialException and the simulator's disconnect are both OSError subclasses.

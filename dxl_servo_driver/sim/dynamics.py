@@ -132,19 +132,9 @@ class ServoDynamics:
         self._mode: Optional[int] = None
         self._torque_on = False
         self._remainder_s = 0.0
-        self._overload_s = 0.0
         # Position profile state, in horn coordinates (pulses without turn or homing offset).
         self._profile: Optional[PositionProfile] = None
-        self._profile_t_ms = 0.0
-        self._profile_kind = PROFILE_STEP
-        self._traj_pulse = self.horn_position_pulse
-        self._traj_vel_pulse_ms = 0.0
-        self._traj_acc_pulse_ms2 = 0.0
-        self._target_pulse = self.horn_position_pulse
-        # Velocity mode profile state, in velocity units.
-        self._vel_traj_raw = 0.0
-        self._pos_integral = 0.0
-        self._vel_integral = 0.0
+        self.reset_controllers()
 
     # ----------------------------------------------------------------- readable physical state
     @property
