@@ -310,6 +310,7 @@ class Bus:
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...]], bytes] = {}
         self._in_flight: Optional[Tuple[Tuple[int, ...], int, float]] = None
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
+        self.last_read_clean = False
         self.tx_packets = 0
         self.timeouts = 0
         self.corrupt = 0
@@ -475,6 +476,8 @@ class Bus:
                 buffer = port.read(reply_size * len(id_tuple),
                                    max(0.0, deadline - time.monotonic()))
                 results = self._parse_sync_fast(buffer, id_tuple, length)
+                # Clean: every reply there and well formed (callers skip their checks).
+                self.last_read_clean = results is not None
                 if results is None:
                     results = self._parse_sync(buffer, id_tuple, length)
                 while len(results) < len(id_tuple):

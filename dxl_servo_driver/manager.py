@@ -414,7 +414,8 @@ class Manager:
             stamp, full, length = self._reading
             self._reading = None
             results = self.bus.sync_read_end()
-            if retry_until is not None and self.config.read_retries:
+            if (retry_until is not None and self.config.read_retries
+                    and not self.bus.last_read_clean):
                 self._retry_failed(results, length, retry_until)
             self._need_full = False
             if full:
