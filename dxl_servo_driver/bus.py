@@ -1,15 +1,28 @@
 """
-The bus layer: one serial port of Dynamixel servos, Protocol 2.0.
+The bus layer: one serial port of Dynamixel servos, Protocol 2.0 transactions.
 
-This is the only layer that touches dynamixel_sdk and pyserial. One-off transactions (ping, read,
-write, reboot, ...) go through the stock dynamixel_sdk Protocol2PacketHandler over an adapter whose
-reads block with a deadline instead of busy-polling. The per-cycle sync read and sync write are
-built once and parsed here with struct, because they run hundreds of times a second.
+This is the only layer that touches the serial device. Every transaction follows one rule:
+a reply is accepted only when it answers the request just sent. Before a request goes out,
+whatever is waiting on the port (a late reply of an earlier request) is dropped; then the
+replies are framed by protocol.scan_frames and each is checked: a status packet, from the id
+asked, with exactly the parameter length the request implies (and, in a sync read, in the
+order of the ids asked). Anything else is counted and discarded: the local echo of our own
+request (half-duplex adapters without echo suppression, learned and then skipped cheaply),
+replies to other ids, replies of the wrong length, line noise, truncated packets.
 
-Every wait is a blocking read with a deadline computed from the bytes expected, the baud rate, the
-servos' Return Delay Time and the USB adapter's latency timer, on the monotonic clock.
+No status packet carries a sequence number, so a late reply of an identical earlier request
+looks like the answer to this one. The bus therefore keeps a "dirty" flag for a while after any
+anomaly (a timeout, a discarded or corrupted reply, bytes waiting before a request): while it
+is set, one-off transactions read on to their deadline and take the last matching reply (replies
+leave the bus in order), and the cycle's state reads carry the servos' Realtime Tick so the
+caller can date every sample (see model.TickClock).
+
+Every wait is a blocking read with an absolute deadline on the monotonic clock, computed from
+the bytes expected, the baud rate, the servos' Return Delay Time and the USB adapter's latency
+timer: a device that never stops sending cannot hold a transaction past it.
 """
 
+from dataclasses import dataclass, field
 import errno
 import os
 import select
@@ -21,14 +34,17 @@ from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Un
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.protocol import BROADCAST_ID, crc16, encode_instruction, ErrorCode
-from dxl_servo_driver.protocol import HEADER, Instruction, unstuff
-import dynamixel_sdk
+from dxl_servo_driver.protocol import Frame, HEADER, Instruction, scan_frames, unstuff
 import serial
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
 DEADLINE_SLACK_S = 0.002
 BITS_PER_BYTE = 10
-STATUS_OVERHEAD = 11
+STATUS_OVERHEAD = 11           # header 4, id, length 2, instruction, error, crc 2
+PING_REPLY_PARAMS = 3          # model number (2), firmware version (1)
+# How long the bus stays suspicious after an anomaly: late replies of a frozen adapter arrive
+# within this window of the timeouts they caused.
+DIRTY_HOLD_S = 1.0
 ERROR_TEXT: Dict[int, str] = {
     ErrorCode.RESULT_FAIL: 'result fail (the servo could not process the instruction)',
     ErrorCode.INSTRUCTION: 'instruction error (unknown instruction, or ACTION without REG_WRITE)',
@@ -38,6 +54,9 @@ ERROR_TEXT: Dict[int, str] = {
     ErrorCode.DATA_LIMIT: 'data limit error (value beyond the limit register)',
     ErrorCode.ACCESS: 'access error (read-only register, or EEPROM while torque is on)',
 }
+# The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
+BROADCAST_PING_PER_ID_S = 0.003
+MAX_ID = 252
 
 
 class BusError(Exception):
@@ -53,11 +72,11 @@ class PortError(BusError):
 
 
 class CommTimeout(BusError, TimeoutError):
-    """No (complete) status packet arrived before the deadline."""
+    """No (complete, matching) status packet arrived before the deadline."""
 
 
 class CorruptReply(BusError):
-    """A status packet arrived but failed its CRC or framing check."""
+    """A status packet from the servo arrived but failed its CRC or framing check."""
 
 
 class StatusError(BusError):
@@ -131,22 +150,30 @@ class SerialPort:
 
     @baudrate.setter
     def baudrate(self, baud_bps: int) -> None:
-        self._serial.baudrate = baud_bps
+        try:
+            self._serial.baudrate = baud_bps
+        except (OSError, ValueError, serial.SerialException) as exc:
+            raise PortError(f'{self.device}: cannot set {baud_bps} bps: {exc}') from None
         # The cached attributes carry the speed: take them again, or the next VMIN change
         # would put the old speed back.
         self._attrs = termios.tcgetattr(self._fd)
         self._vmin = -1
 
     def write(self, data: bytes) -> int:
-        """Send all bytes; PortError when the device is gone."""
+        """Send all bytes; PortError when the device is gone or stays blocked."""
         view = memoryview(data)
         sent = 0
+        deadline = time.monotonic() + 1.0
         try:
             while sent < len(view):
                 try:
                     sent += os.write(self._fd, view[sent:])
                 except BlockingIOError:
-                    # The port is non-blocking (pyserial opens it so): wait for room.
+                    # The port is non-blocking (pyserial opens it so): wait for room, but not
+                    # forever (a wedged adapter).
+                    if time.monotonic() > deadline:
+                        raise PortError(f'{self.device}: write blocked for 1 s; is the '
+                                        'adapter wedged?') from None
                     self._write_poll.poll(100)
         except OSError as exc:
             raise PortError(f'{self.device}: write failed ({exc.strerror}); '
@@ -247,54 +274,56 @@ def open_port(device: str, baud_bps: int) -> SerialPort:
     return SerialPort(device, baud_bps)
 
 
-class _SdkPort:
+@dataclass
+class Counters:
+    """What the bus saw, for diagnostics: every anomaly is counted, none is silent."""
+
+    tx_packets: int = 0
+    timeouts: int = 0          # a servo's reply missing at the deadline
+    corrupt: int = 0           # replies from a servo we asked that failed their CRC
+    status_errors: int = 0     # replies carrying an error code
+    stale: int = 0             # replies discarded: wrong id, length, order, or a duplicate
+    echoes: int = 0            # our own requests seen coming back (local echo)
+    flushed_bytes: int = 0     # bytes waiting before a request (late replies, noise)
+
+
+@dataclass
+class SyncRead:
+    """A sync read on the wire: begin_sync_read() made it, end_sync_read() collects it."""
+
+    address: int
+    length: int
+    ids: Tuple[int, ...]
+    packet: bytes
+    sent_s: float
+    deadline_s: float
+    done: bool = False
+
+
+@dataclass
+class SyncResult:
     """
-    dynamixel_sdk's PortHandler interface over a RawPort, without busy-waiting.
+    What a sync read brought back.
 
-    The SDK's receive loops call readPort() until they have a packet or isPacketTimeout() says
-    stop; readPort() here blocks until the bytes asked for arrive or the deadline passes, so the
-    loops run a handful of times instead of spinning a core.
+    data maps each id asked to its bytes or to the BusError saying why there are none. clean
+    is True when the reply block was exactly what was expected (every reply there, in order,
+    nothing else), so callers may skip their own checks. sent_s is when the request went out
+    (monotonic): a sample cannot be older than that. alerts holds each reply's alert bit.
     """
 
-    def __init__(self, bus: 'Bus') -> None:
-        self._bus = bus
-        self.is_using = False
-        self._deadline = 0.0
-
-    def getBaudRate(self) -> int:  # noqa: N802 - dynamixel_sdk's names
-        return self._bus.baud_bps
-
-    def clearPort(self) -> None:  # noqa: N802
-        self._bus.port.reset_input_buffer()
-
-    def writePort(self, packet: Sequence[int]) -> int:  # noqa: N802
-        return self._bus.port.write(bytes(packet))
-
-    def readPort(self, length: int) -> bytes:  # noqa: N802
-        if length <= 0:
-            return b''
-        return self._bus.port.read(length, max(0.0, self._deadline - time.monotonic()))
-
-    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802
-        self._deadline = time.monotonic() + self._bus.reply_timeout_s(packet_length)
-
-    def setPacketTimeoutMillis(self, msec: float) -> None:  # noqa: N802
-        self._deadline = time.monotonic() + msec / 1000.0
-
-    def isPacketTimeout(self) -> bool:  # noqa: N802
-        # The SDK asks this before reading the rest of a packet; bytes already waiting mean
-        # the reply did arrive (this thread was just late), not that it timed out.
-        return time.monotonic() > self._deadline and not self._bus.port.in_waiting
-
-
-SyncResult = Dict[int, Union[bytes, BusError]]
+    data: Dict[int, Union[bytes, BusError]]
+    clean: bool
+    sent_s: float
+    alerts: Dict[int, bool] = field(default_factory=dict)
+    # (sent, received) of the ids whose data came from a later one-off read (a retry)
+    dated: Dict[int, Tuple[float, float]] = field(default_factory=dict)
 
 
 class Bus:
     """
     One bus of Protocol 2.0 servos on one port. Thread-safe: one transaction at a time.
 
-    The bus never retries on its own; the manager decides what a failure means.
+    The bus never retries on its own; the caller decides what a failure means.
     """
 
     def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
@@ -305,17 +334,12 @@ class Bus:
         # The largest Return Delay Time expected on this bus (the seed's default is 500 us).
         self.return_delay_s = return_delay_s
         self.lock = threading.RLock()
-        self._sdk = dynamixel_sdk.Protocol2PacketHandler()
-        self._sdk_port = _SdkPort(self)
+        self.counters = Counters()
+        self.echo = False             # learned: the adapter echoes what we send
+        self._dirty_until = 0.0
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...]], bytes] = {}
-        self._in_flight: Optional[Tuple[Tuple[int, ...], int, float]] = None
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
-        self.last_read_clean = False
-        self.tx_packets = 0
-        self.timeouts = 0
-        self.corrupt = 0
-        self.status_errors = 0
-        self.alerts: Dict[int, bool] = {}
+        self._pending: Optional[SyncRead] = None
 
     # timing ------------------------------------------------------------------------------
     def byte_time_s(self, n_bytes: int) -> float:
@@ -327,67 +351,203 @@ class Bus:
         return (self.byte_time_s(tx_bytes + reply_bytes) + n_replies * self.return_delay_s
                 + self.latency_timer_s + DEADLINE_SLACK_S)
 
+    def set_baud(self, baud_bps: int) -> None:
+        """Change the line speed of the port and of the deadlines."""
+        with self.lock:
+            try:
+                self.port.baudrate = baud_bps
+            except OSError as exc:
+                raise _port_lost(exc) from None
+            self.baud_bps = baud_bps
+
+    @property
+    def dirty(self) -> bool:
+        """Return True while the bus is suspicious (an anomaly happened lately)."""
+        return time.monotonic() < self._dirty_until
+
+    def mark_dirty(self) -> None:
+        """Be suspicious of replies for a while (an anomaly happened)."""
+        self._dirty_until = time.monotonic() + DIRTY_HOLD_S
+
     def close(self) -> None:
         """Close the port."""
         with self.lock:
             self.port.close()
 
-    # one-off transactions through dynamixel_sdk -----------------------------------------
-    def _check(self, servo_id: int, what: str, result: int, error: int) -> None:
-        if result == dynamixel_sdk.COMM_SUCCESS:
-            code = error & 0x7F
-            alert = bool(error & 0x80)
-            self.alerts[servo_id] = alert
-            if code:
-                self.status_errors += 1
-                text = ERROR_TEXT.get(code, f'error code {code}')
-                raise StatusError(f'id {servo_id}: {what} refused: {text}', servo_id, code, alert)
-            return
-        if result == dynamixel_sdk.COMM_RX_TIMEOUT:
-            self.timeouts += 1
-            raise CommTimeout(
-                f'id {servo_id}: no status packet for {what} at {self.baud_bps} bps '
-                f'(check the id, the baud rate, Protocol 2.0, the servo power and the adapter '
-                f'latency timer)', servo_id)
-        if result == dynamixel_sdk.COMM_RX_CORRUPT:
-            self.corrupt += 1
-            raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}', servo_id)
-        raise BusError(f'id {servo_id}: {what} failed: '
-                       f'{self._sdk.getTxRxResult(result)}', servo_id)
+    # one-off transactions ------------------------------------------------------------------
+    def _flush(self) -> None:
+        # Bytes waiting before a request are late replies or noise: never an answer to it.
+        port = self.port
+        waiting = port.in_waiting
+        if waiting:
+            port.reset_input_buffer()
+            self.counters.flushed_bytes += waiting
+            self.mark_dirty()
 
-    def _sdk_call(self, func, *args):  # type: ignore[no-untyped-def]
+    def _send(self, packet: bytes) -> Tuple[float, float]:
+        """Flush, write; return (time before the write, time after it)."""
+        try:
+            self._flush()
+            # A servo may sample its state as soon as the request reaches it, which can be
+            # before write() returns (the in-process simulator answers inside it): a reply
+            # cannot be older than this.
+            before = time.monotonic()
+            self.port.write(packet)
+        except OSError as exc:   # PortError is not an OSError; SimPortDisconnected is
+            raise _port_lost(exc) from None
+        self.counters.tx_packets += 1
+        return before, time.monotonic()
+
+    def _read(self, size: int, deadline_s: float) -> bytes:
+        try:
+            return self.port.read(max(1, size), max(0.0, deadline_s - time.monotonic()))
+        except OSError as exc:
+            raise _port_lost(exc) from None
+
+    def transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
+                 what: str) -> bytes:
+        """
+        Send one instruction to one servo and return the parameters of its status packet.
+
+        Only a status packet from servo_id whose parameter count is reply_params answers (an
+        error status may carry none); StatusError when it carries an error code, CommTimeout
+        when none came by the deadline, CorruptReply when the only one failed its CRC.
+        """
+        return self._transact(servo_id, instruction, params, reply_params, what, None)[0]
+
+    def _transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
+                  what: str, linger: Optional[bool]) -> Tuple[bytes, float]:
+        """Return (reply parameters, time the request went out); linger None: if dirty."""
+        packet = encode_instruction(servo_id, instruction, params)
+        reply_size = STATUS_OVERHEAD + reply_params
         with self.lock:
-            self.tx_packets += 1
-            try:
-                return func(self._sdk_port, *args)
-            except (PortError, OSError) as exc:
-                self._sdk_port.is_using = False
-                raise _port_lost(exc) from None
+            if linger is None:
+                linger = self.dirty
+            sent_s, written_s = self._send(packet)
+            deadline = written_s + self.reply_timeout_s(reply_size, 1, len(packet))
+            buffer = bytearray()
+            pos = 0
+            want = reply_size + (len(packet) if self.echo else 0)
+            found: Optional[Tuple[int, bytes]] = None
+            corrupt = stale = echoed = False
+            max_length = 2 * (reply_params + 4) + 8
+            while True:
+                chunk = self._read(want - len(buffer), deadline)
+                buffer += chunk
+                final = time.monotonic() >= deadline
+                frames, pos = scan_frames(buffer, pos, max_length=max(max_length, len(packet)),
+                                          final=final)
+                for frame in frames:
+                    kind = self._classify(frame, packet, servo_id)
+                    if kind == 'echo':
+                        echoed = True
+                    elif kind == 'corrupt':
+                        corrupt = True
+                    elif kind == 'status':
+                        error, data = _status_of(frame)
+                        if len(data) == reply_params or (error & 0x7F and not data):
+                            if found is not None:
+                                stale = True   # an earlier one was a late reply: last wins
+                            found = (error, data)
+                        else:
+                            stale = True
+                    else:
+                        stale = True
+                if final or (found is not None and not linger):
+                    break
+                # Dirty bus: read on to the deadline, a later matching reply replaces this one.
+                want = len(buffer) + reply_size
+            if echoed != self.echo and (echoed or found is not None):
+                self.echo = echoed
+            if echoed:
+                self.counters.echoes += 1
+            if stale or corrupt or pos < len(buffer):
+                self.counters.stale += int(stale)
+                self.mark_dirty()
+            if found is None:
+                self.mark_dirty()
+                if corrupt:
+                    self.counters.corrupt += 1
+                    raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
+                                       servo_id)
+                self.counters.timeouts += 1
+                hint = (' (only replies that did not answer it came back)' if stale else
+                        ' (check the id, the baud rate, Protocol 2.0, the servo power and the '
+                        'adapter latency timer)')
+                raise CommTimeout(f'id {servo_id}: no status packet for {what} at '
+                                  f'{self.baud_bps} bps{hint}', servo_id)
+            error, data = found
+            code = error & 0x7F
+            if code:
+                self.counters.status_errors += 1
+                text = ERROR_TEXT.get(code, f'error code {code}')
+                raise StatusError(f'id {servo_id}: {what} refused: {text}', servo_id, code,
+                                  bool(error & 0x80))
+            return data, sent_s
+
+    @staticmethod
+    def _classify(frame: Frame, packet: bytes, servo_id: int) -> str:
+        if not frame.crc_ok:
+            return 'corrupt' if frame.servo_id == servo_id else 'noise'
+        if frame.instruction != Instruction.STATUS:
+            return 'echo' if frame.raw == packet else 'noise'
+        return 'status' if frame.servo_id == servo_id else 'other'
 
     def ping(self, servo_id: int) -> int:
         """Return the model number of the servo; raise when it does not answer."""
-        model, result, error = self._sdk_call(self._sdk.ping, servo_id)
-        self._check(servo_id, 'ping', result, error)
-        return int(model)
+        data = self.transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping')
+        return data[0] | (data[1] << 8)
+
+    def ping_info(self, servo_id: int) -> Tuple[int, int]:
+        """Return (model number, firmware version) of the servo."""
+        data = self.transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping')
+        return data[0] | (data[1] << 8), data[2]
 
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping."""
-        found, result = self._sdk_call(self._sdk.broadcastPing)
-        if result not in (dynamixel_sdk.COMM_SUCCESS, dynamixel_sdk.COMM_RX_TIMEOUT):
-            raise BusError(f'broadcast ping failed: {self._sdk.getTxRxResult(result)}')
-        return {int(servo_id): int(info[0]) for servo_id, info in found.items()}
+        packet = encode_instruction(BROADCAST_ID, Instruction.PING)
+        reply_size = STATUS_OVERHEAD + PING_REPLY_PARAMS
+        found: Dict[int, int] = {}
+        with self.lock:
+            _, written_s = self._send(packet)
+            deadline = (written_s + self.reply_timeout_s(reply_size * (MAX_ID + 1), 0, len(packet))
+                        + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
+            buffer = bytearray()
+            pos = 0
+            while True:
+                buffer += self._read(reply_size, deadline)
+                final = time.monotonic() >= deadline
+                frames, pos = scan_frames(buffer, pos, max_length=32, final=final)
+                for frame in frames:
+                    if frame.crc_ok and frame.instruction == Instruction.STATUS:
+                        error, data = _status_of(frame)
+                        if len(data) == PING_REPLY_PARAMS:
+                            found[frame.servo_id] = data[0] | (data[1] << 8)
+                    elif frame.raw == packet:
+                        self.echo = True
+                if final:
+                    break
+        return found
 
     def read(self, servo_id: int, address: int, length: int) -> bytes:
         """Return length bytes of the servo's control table from address."""
-        data, result, error = self._sdk_call(self._sdk.readTxRx, servo_id, address, length)
-        self._check(servo_id, f'read of {length} bytes at {address}', result, error)
-        return bytes(data)
+        return self.transact(servo_id, Instruction.READ, struct.pack('<HH', address, length),
+                             length, f'read of {length} bytes at {address}')
+
+    def read_dated(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
+        """
+        Return (data, time the request went out) of a read whose data the caller dates itself.
+
+        For the state block's tagged reads (the Realtime Tick tells a late reply): no reading
+        on to the deadline when the bus is suspicious.
+        """
+        return self._transact(servo_id, Instruction.READ, struct.pack('<HH', address, length),
+                              length, f'read of {length} bytes at {address}', False)
 
     def write(self, servo_id: int, address: int, data: bytes) -> None:
         """Write bytes to the servo's control table at address, and check the status."""
-        result, error = self._sdk_call(self._sdk.writeTxRx, servo_id, address, len(data),
-                                       list(data))
-        self._check(servo_id, f'write of {len(data)} bytes at {address}', result, error)
+        self.transact(servo_id, Instruction.WRITE, struct.pack('<H', address) + bytes(data), 0,
+                      f'write of {len(data)} bytes at {address}')
 
     def read_item(self, servo_id: int, item: ct.Item) -> int:
         """Return one control-table item's value."""
@@ -400,19 +560,17 @@ class Bus:
 
     def reboot(self, servo_id: int) -> None:
         """Send REBOOT and check the servo acknowledged it."""
-        result, error = self._sdk_call(self._sdk.reboot, servo_id)
         # The status of a REBOOT may carry the alert bit of the error being cleared.
-        self._check(servo_id, 'reboot', result, error)
+        self.transact(servo_id, Instruction.REBOOT, b'', 0, 'reboot')
 
     def clear_multi_turn(self, servo_id: int) -> None:
-        """Send CLEAR: present position back within one turn."""
-        result, error = self._sdk_call(self._sdk.clearMultiTurn, servo_id)
-        self._check(servo_id, 'clear multi-turn', result, error)
+        """Send CLEAR: present position back within one turn (the servo must be still)."""
+        self.transact(servo_id, Instruction.CLEAR, b'\x01\x44\x58\x4c\x22', 0,
+                      'clear multi-turn')
 
     def factory_reset(self, servo_id: int, option: int) -> None:
         """Send FACTORY_RESET with option 0xFF, 0x01 or 0x02."""
-        result, error = self._sdk_call(self._sdk.factoryReset, servo_id, option)
-        self._check(servo_id, 'factory reset', result, error)
+        self.transact(servo_id, Instruction.FACTORY_RESET, bytes((option,)), 0, 'factory reset')
 
     # per-cycle transactions ----------------------------------------------------------------
     def _sync_read_packet(self, address: int, length: int, ids: Tuple[int, ...]) -> bytes:
@@ -430,82 +588,78 @@ class Bus:
         """
         Read length bytes at address from every servo in ids with one SYNC_READ.
 
-        Returns {id: data} for the servos that answered well and {id: BusError} for the others;
-        a servo that is silent or corrupted never stops the others from being read.
+        Each id maps to its data or to a BusError; a servo that is silent or corrupted never
+        stops the others from being read.
         """
-        self.sync_read_begin(address, length, ids)
-        return self.sync_read_end()
+        return self.end_sync_read(self.begin_sync_read(address, length, ids))
 
-    def sync_read_begin(self, address: int, length: int, ids: Sequence[int]) -> None:
+    def begin_sync_read(self, address: int, length: int, ids: Sequence[int]) -> SyncRead:
         """
-        Send a SYNC_READ and return at once; sync_read_end() collects the replies.
+        Send a SYNC_READ and return at once; end_sync_read() collects the replies.
 
         The caller may do other work (publish the previous cycle) while the servos answer. The
-        bus lock is held from here to sync_read_end(), which must follow in the same thread.
+        bus lock is held from here to end_sync_read() or abort(), which must follow in the same
+        thread.
         """
         id_tuple = tuple(ids)
         packet = self._sync_read_packet(address, length, id_tuple)
         expected = (STATUS_OVERHEAD + length) * len(id_tuple)
         self.lock.acquire()
         try:
-            port = self.port
-            if port.in_waiting:
-                port.reset_input_buffer()   # a late reply of an earlier transaction
-            port.write(packet)
-            self.tx_packets += 1
-        except (PortError, OSError) as exc:
-            self.lock.release()
-            raise _port_lost(exc) from None
+            if self._pending is not None and not self._pending.done:
+                raise RuntimeError('a sync read is already in flight')
+            sent_s, written_s = self._send(packet)
         except BaseException:
             self.lock.release()
             raise
-        deadline = time.monotonic() + self.reply_timeout_s(expected, len(id_tuple), len(packet))
-        self._in_flight = (id_tuple, length, deadline)
+        deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(packet))
+        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline)
+        self._pending = pending
+        return pending
 
-    def sync_read_end(self) -> SyncResult:
-        """Collect the replies of the SYNC_READ sent by sync_read_begin()."""
-        in_flight = self._in_flight
-        if in_flight is None:
-            raise RuntimeError('sync_read_end() without sync_read_begin()')
-        self._in_flight = None
+    def abort(self, pending: Optional[SyncRead]) -> None:
+        """Give up a sync read begun and not ended (idempotent); its replies are then stale."""
+        if pending is None or pending.done:
+            return
+        pending.done = True
+        self.mark_dirty()
+        self.lock.release()
+
+    def end_sync_read(self, pending: SyncRead) -> SyncResult:
+        """Collect the replies of a sync read begun by begin_sync_read()."""
+        if pending.done:
+            raise RuntimeError('end_sync_read() of a sync read already ended')
+        pending.done = True
         try:
-            id_tuple, length, deadline = in_flight
-            reply_size = STATUS_OVERHEAD + length
-            port = self.port
-            try:
-                buffer = port.read(reply_size * len(id_tuple),
-                                   max(0.0, deadline - time.monotonic()))
-                results = self._parse_sync_fast(buffer, id_tuple, length)
-                # Clean: every reply there and well formed (callers skip their checks).
-                self.last_read_clean = results is not None
-                if results is None:
-                    results = self._parse_sync(buffer, id_tuple, length)
-                while len(results) < len(id_tuple):
-                    # Byte stuffing or a bad packet made the replies longer, or this thread
-                    # was late: read the rest (past the deadline, only what already arrived).
-                    more = port.read(reply_size, max(0.0, deadline - time.monotonic()))
-                    if not more:
-                        break
-                    buffer += more
-                    results = self._parse_sync(buffer, id_tuple, length)
-            except (PortError, OSError) as exc:
-                raise _port_lost(exc) from None
+            return self._collect(pending)
         finally:
             self.lock.release()
-        for servo_id in id_tuple:
-            if servo_id not in results:
-                self.timeouts += 1
-                results[servo_id] = CommTimeout(
-                    f'id {servo_id}: no status packet in the sync read', servo_id)
-        return results
+
+    def _collect(self, pending: SyncRead) -> SyncResult:
+        ids = pending.ids
+        length = pending.length
+        reply_size = STATUS_OVERHEAD + length
+        expected = reply_size * len(ids)
+        echo_size = len(pending.packet) if self.echo else 0
+        buffer = self._read(echo_size + expected, pending.deadline_s)
+        if echo_size:
+            if buffer[:echo_size] == pending.packet:
+                buffer = buffer[echo_size:]
+                self.counters.echoes += 1
+            else:
+                self.echo = False
+        results = self._parse_sync_fast(buffer, ids, length)
+        if results is not None:
+            return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
+        return self._collect_slow(pending, bytearray(buffer))
 
     def _parse_sync_fast(self, buffer: bytes, ids: Tuple[int, ...],
-                         length: int) -> Optional[SyncResult]:
+                         length: int) -> Optional[Dict[int, Union[bytes, BusError]]]:
         """
         Parse the usual case at once: every reply there, in order, unstuffed, error byte 0.
 
         Each reply must start with exactly the bytes a clean status of that id has (header, id,
-        length, 0x55, error 0) and pass its CRC; anything else returns None and the general
+        length, 0x55, error 0) and pass its CRC; anything else returns None and the careful
         parser takes the whole buffer.
         """
         reply_size = STATUS_OVERHEAD + length
@@ -519,7 +673,7 @@ class Bus:
             if len(self._status_prefixes) > 64:
                 self._status_prefixes.clear()
             self._status_prefixes[key] = prefixes
-        results: SyncResult = {}
+        results: Dict[int, Union[bytes, BusError]] = {}
         start = 0
         for servo_id, prefix in zip(ids, prefixes):
             body_end = start + reply_size - 2
@@ -528,56 +682,101 @@ class Bus:
                 return None
             results[servo_id] = buffer[start + 9:body_end]
             start += reply_size
-        alerts = self.alerts
-        for servo_id in ids:
-            alerts[servo_id] = False
         return results
 
-    def _parse_sync(self, buffer: bytes, ids: Tuple[int, ...], length: int) -> SyncResult:
-        results: SyncResult = {}
-        wanted = set(ids)
+    def _collect_slow(self, pending: SyncRead, buffer: bytearray) -> SyncResult:
+        """
+        Take an unusual reply block apart, reading on when replies are missing.
+
+        Each id's last well-formed reply of the right length wins (replies leave the bus in
+        order, so a late or duplicated one comes before the answer to this request). A reply
+        that comes before the reply of an id asked earlier cannot belong to this request
+        unless that earlier one was late too: it is ambiguous and refused. When anything
+        unusual was seen the block is read to its deadline, so an answer that follows a stale
+        reply is not missed.
+        """
+        ids = pending.ids
+        length = pending.length
+        order = {servo_id: index for index, servo_id in enumerate(ids)}
         reply_size = STATUS_OVERHEAD + length
+        max_length = 2 * (length + 4) + 8
+        entries: Dict[int, Tuple[int, int, bytes]] = {}   # id -> (frame index, error, data)
+        corrupt: Dict[int, int] = {}
+        anomalies = 0
         pos = 0
-        end = len(buffer)
+        index = 0
+        counters = self.counters
         while True:
-            start = buffer.find(HEADER, pos)
-            if start < 0 or start + 7 > end:
+            final = time.monotonic() >= pending.deadline_s
+            frames, pos = scan_frames(buffer, pos, max_length=max(max_length, len(pending.packet)),
+                                      final=final)
+            for frame in frames:
+                index += 1
+                servo_id = frame.servo_id
+                if not frame.crc_ok:
+                    anomalies += 1
+                    if servo_id in order:
+                        corrupt[servo_id] = corrupt.get(servo_id, 0) + 1
+                    continue
+                if frame.instruction != Instruction.STATUS:
+                    if frame.raw == pending.packet:
+                        self.echo = True
+                        counters.echoes += 1
+                    else:
+                        anomalies += 1
+                    continue
+                if servo_id not in order:
+                    anomalies += 1
+                    counters.stale += 1
+                    continue
+                error, data = _status_of(frame)
+                if len(data) != length and not (error & 0x7F and not data):
+                    anomalies += 1
+                    counters.stale += 1
+                    continue
+                if servo_id in entries:
+                    anomalies += 1
+                    counters.stale += 1
+                entries[servo_id] = (index, error, data)
+            if final or (not anomalies and len(entries) == len(ids)):
                 break
-            servo_id = buffer[start + 4]
-            packet_length = buffer[start + 5] | (buffer[start + 6] << 8)
-            if packet_length < 4 or packet_length > 4 * reply_size:
-                pos = start + 1   # a length no status of ours has: noise, resync
+            missing = len(ids) - len(entries)
+            buffer += self._read(max(missing, 1) * reply_size, pending.deadline_s)
+        if anomalies or pos < len(buffer) or len(entries) < len(ids):
+            self.mark_dirty()   # a missing reply may still come, late
+        results: Dict[int, Union[bytes, BusError]] = {}
+        alerts: Dict[int, bool] = {}
+        latest = 0   # frame index of the last accepted reply, in request order
+        for servo_id in ids:
+            entry = entries.get(servo_id)
+            if entry is None:
+                if corrupt.get(servo_id):
+                    counters.corrupt += 1
+                    results[servo_id] = CorruptReply(
+                        f'id {servo_id}: corrupted status packet in the sync read', servo_id)
+                else:
+                    counters.timeouts += 1
+                    results[servo_id] = CommTimeout(
+                        f'id {servo_id}: no status packet in the sync read', servo_id)
                 continue
-            stop = start + 7 + packet_length
-            if stop > end:
-                break
-            raw = buffer[start:stop]
-            pos = stop
-            if servo_id not in wanted or servo_id in results:
+            frame_index, error, data = entry
+            if frame_index < latest:
+                counters.stale += 1
+                results[servo_id] = CommTimeout(
+                    f'id {servo_id}: its reply came before that of an id asked earlier '
+                    '(a late reply of an earlier request?)', servo_id)
                 continue
-            if crc16(raw[:-2]) != (raw[-2] | (raw[-1] << 8)) or raw[7] != Instruction.STATUS:
-                self.corrupt += 1
-                results[servo_id] = CorruptReply(f'id {servo_id}: corrupted status packet',
-                                                 servo_id)
-                continue
-            error = raw[8]
-            params = raw[9:-2]
-            if len(params) != length:
-                params = unstuff(params)
-            self.alerts[servo_id] = bool(error & 0x80)
+            latest = frame_index
+            alerts[servo_id] = bool(error & 0x80)
             if error & 0x7F:
-                self.status_errors += 1
+                counters.status_errors += 1
+                code = error & 0x7F
                 results[servo_id] = StatusError(
-                    f'id {servo_id}: sync read refused (error {error & 0x7F})', servo_id,
-                    error & 0x7F, bool(error & 0x80))
-            elif len(params) != length:
-                self.corrupt += 1
-                results[servo_id] = CorruptReply(
-                    f'id {servo_id}: status packet with {len(params)} bytes, expected {length}',
-                    servo_id)
+                    f'id {servo_id}: sync read refused: {ERROR_TEXT.get(code, code)}',
+                    servo_id, code, bool(error & 0x80))
             else:
-                results[servo_id] = bytes(params)
-        return results
+                results[servo_id] = data
+        return SyncResult(results, False, pending.sent_s, alerts)
 
     def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
         """Write length bytes at address on several servos with one SYNC_WRITE; return bytes."""
@@ -589,12 +788,32 @@ class Bus:
             params += value
         packet = encode_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
         with self.lock:
-            try:
-                self.port.write(packet)
-            except (PortError, OSError) as exc:
-                raise _port_lost(exc) from None
-            self.tx_packets += 1
+            if self.echo:
+                # A sync write has no reply, but an echoing adapter sends it back: take it now
+                # rather than let the next request flush it as an anomaly.
+                self._send(packet)
+                echo = self._read(len(packet), time.monotonic() + self.reply_timeout_s(
+                    0, 0, len(packet)))
+                if echo != packet:
+                    self.echo = False
+            else:
+                try:
+                    self.port.write(packet)
+                except OSError as exc:
+                    raise _port_lost(exc) from None
+                self.counters.tx_packets += 1
         return len(packet)
+
+
+def _status_of(frame: Frame) -> Tuple[int, bytes]:
+    """Return (error byte, parameters) of a status frame (parameters unstuffed)."""
+    raw = frame.raw
+    if len(raw) < STATUS_OVERHEAD:
+        return 0, b''
+    data = raw[9:-2]
+    if b'\xff\xff\xfd\xfd' in data:
+        data = unstuff(data)
+    return raw[8], data
 
 
 def _port_lost(exc: BaseException) -> PortError:

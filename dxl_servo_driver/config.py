@@ -12,6 +12,11 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
+import yaml  # type: ignore[import-untyped]
+
+
+class ParameterFileError(ValueError):
+    """A parameter file ROS could not read; the message names the file and, if any, the key."""
 
 
 class ConfigError(ValueError):
@@ -201,6 +206,7 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
         if name in seen_names:
             raise ConfigError('joints', f'joint {name!r} is listed twice')
         seen_names.add(name)
+    check_thresholds(values)
     _reject_unknown_keys(params, seen_names)
     joints = []
     ids: Dict[int, str] = {}
@@ -264,25 +270,113 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
 
 
 def _check_limits(name: str, registers: Dict[str, int], mode: str) -> None:
-    # Values bounded by another register of the same file must respect it, as the servo would
-    # refuse them (data limit error) at configure.
-    def value(register: str) -> int:
-        return registers.get(register, ct.BY_NAME[register].initial)
+    # Values bounded by another register must respect it, as the servo would refuse them (data
+    # limit error) at configure: the rules of model.check_register_set, against the file's
+    # values where it sets them and the table's initial values elsewhere.
+    values = {item.name: item.initial for item in ct.ITEMS}
+    values.update(registers)
+    # The lower bound of a crossed pair is named (min_position_limit, not max_...).
+    for register in sorted(registers, key=lambda r: r.startswith('max_')):
+        value = registers[register]
+        try:
+            model.check_register_set(values, register, value, mode)
+        except ValueError as exc:
+            raise ConfigError(f'{name}.registers.{register}', str(exc)) from None
 
-    for register, limit in (('profile_velocity', 'velocity_limit'),
-                            ('profile_acceleration', 'acceleration_limit'),
-                            ('goal_pwm', 'pwm_limit'), ('goal_current', 'current_limit')):
-        if register in registers and abs(registers[register]) > value(limit):
-            raise ConfigError(f'{name}.registers.{register}',
-                              f'{registers[register]} exceeds {limit} ({value(limit)})')
-    if value('min_position_limit') > value('max_position_limit'):
-        raise ConfigError(f'{name}.registers.min_position_limit',
-                          f'min_position_limit {value("min_position_limit")} is above '
-                          f'max_position_limit {value("max_position_limit")}')
-    if value('min_voltage_limit') > value('max_voltage_limit'):
-        raise ConfigError(f'{name}.registers.min_voltage_limit',
-                          'min_voltage_limit is above max_voltage_limit')
-    if mode == 'position' and abs(value('homing_offset')) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
-        raise ConfigError(f'{name}.registers.homing_offset',
-                          'position mode ignores a homing offset beyond +-1024 (the manual); '
-                          'use extended_position for larger offsets')
+
+def check_thresholds(values: Mapping[str, Any]) -> None:
+    """Raise ConfigError when the diagnostics thresholds contradict each other."""
+    for low, high in (('temperature_warn', 'temperature_error'), ('voltage_low', 'voltage_high')):
+        if values[low] > values[high]:
+            raise ConfigError(low, f'{low} {values[low]:g} is above {high} {values[high]:g}')
+
+
+_YAML_KINDS = ((bool, 'bool'), (int, 'integer'), (float, 'double'), (str, 'string'))
+
+
+def _kind(value: Any) -> str:
+    for python_type, name in _YAML_KINDS:   # bool first: it is an int too
+        if isinstance(value, python_type):
+            return name
+    return type(value).__name__
+
+
+def check_parameter_file(path: str) -> None:
+    """
+    Raise ParameterFileError when ROS could not read this parameter file, saying why in a line.
+
+    ROS parses parameter files in C and answers a bad one with a traceback (or an error about
+    a parameter it typed PARAMETER_NOT_SET); this checks first what it would refuse: a missing
+    or unreadable file, invalid YAML (tabs included), no `<node>: ros__parameters:` mapping,
+    empty lists and mappings (ROS cannot give them a type), lists of lists, mixed-type lists.
+    """
+    try:
+        with open(path, encoding='utf-8') as stream:
+            text = stream.read()
+    except FileNotFoundError:
+        raise ParameterFileError(f'parameter file {path} does not exist') from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ParameterFileError(f'parameter file {path} cannot be read: {exc}') from None
+    try:
+        tree = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        problem = getattr(exc, 'problem', None) or str(exc).splitlines()[0]
+        where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark else ''
+        lines = text.splitlines()
+        hint = ''
+        if mark is not None and mark.line < len(lines) and '\t' in lines[mark.line]:
+            hint = ' (a tab: YAML indents with spaces only)'
+        raise ParameterFileError(f'parameter file {path}: invalid YAML{where}: {problem}'
+                                 f'{hint}') from None
+    if tree is None:
+        return   # an empty file sets nothing; the configuration check says what is missing
+    if not isinstance(tree, dict):
+        raise ParameterFileError(
+            f'parameter file {path}: the top level must map node names (e.g. /**) to '
+            f'"ros__parameters:", not a {_kind(tree)}')
+    _check_node_entries(path, tree, '')
+
+
+def _check_node_entries(path: str, tree: Mapping[Any, Any], prefix: str) -> None:
+    for key, entry in tree.items():
+        where = f'{prefix}{key}'
+        if not isinstance(entry, dict):
+            raise ParameterFileError(
+                f'parameter file {path}: {where!r} needs "ros__parameters:" under it (a node '
+                'name, then ros__parameters, then the parameters)')
+        if 'ros__parameters' in entry:
+            params = entry['ros__parameters']
+            if params is None:
+                continue
+            if not isinstance(params, dict):
+                raise ParameterFileError(f'parameter file {path}: {where}.ros__parameters must '
+                                         'be a mapping of parameter names to values')
+            _check_values(path, params, '')
+        else:
+            _check_node_entries(path, entry, where + '/')   # namespaces may nest
+
+
+def _check_values(path: str, params: Mapping[Any, Any], prefix: str) -> None:
+    for key, value in params.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            if not value:
+                raise ParameterFileError(
+                    f'parameter file {path}: parameter {name!r}: an empty mapping is not a '
+                    'parameter (ROS cannot give it a type); leave the key out')
+            _check_values(path, value, name + '.')
+        elif isinstance(value, list):
+            if not value:
+                raise ParameterFileError(
+                    f'parameter file {path}: parameter {name!r}: an empty list has no type '
+                    'ROS can give it; list at least one element or leave the key out')
+            kinds = sorted({_kind(element) for element in value})
+            if any(isinstance(element, (list, dict)) for element in value):
+                raise ParameterFileError(
+                    f'parameter file {path}: parameter {name!r}: a list of lists or mappings '
+                    'is not a ROS parameter')
+            if len(kinds) > 1:
+                raise ParameterFileError(
+                    f'parameter file {path}: parameter {name!r}: a list mixing '
+                    f'{" and ".join(kinds)}: the elements of a ROS list all have one type')

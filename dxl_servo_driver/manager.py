@@ -3,8 +3,10 @@ The manager: servos by joint name over one Bus, with batching and safety orderin
 
 It owns what the node must never get wrong: configuration applied and verified before anything
 moves, goal = present before torque on, one packed read and one sync write per register per cycle,
-refusals that write nothing, what a mode change resets re-applied, servos that restart on their
-own given their configuration back. No ROS here: the node calls these methods and publishes.
+refusals that write nothing, what a mode change resets re-applied, samples dated so a late reply
+is never published as current, servos that restart on their own given their configuration back
+step by step (never stalling the others), and every torque-on matched by a torque-off at the end.
+No ROS here: the node calls these methods and publishes.
 """
 
 from dataclasses import dataclass, field
@@ -12,12 +14,14 @@ import math
 import struct
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Generator, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
-from dxl_servo_driver.bus import Bus, BusError, CommTimeout, PortError, RawPort, StatusError
+from dxl_servo_driver.bus import Bus, BusError, CommTimeout, CorruptReply, PortError, RawPort
+from dxl_servo_driver.bus import StatusError, SyncRead, SyncResult
 from dxl_servo_driver.config import DriverConfig, JointConfig
+from dxl_servo_driver.tasks import Steps, Task, TaskRunner
 
 Log = Callable[[str], None]
 BLOCK = model.STATE_BLOCK
@@ -25,6 +29,7 @@ _I = BLOCK.index
 IDX_POSITION = _I['present_position']
 IDX_VELOCITY = _I['present_velocity']
 IDX_CURRENT = _I['present_current']
+IDX_TICK = _I['realtime_tick']
 IDX_PWM = _I['present_pwm']
 IDX_VOLTAGE = _I['present_input_voltage']
 IDX_TEMPERATURE = _I['present_temperature']
@@ -36,13 +41,25 @@ IDX_CANARY = BLOCK.canary_index
 WARN_INTERVAL_S = 2.0
 STATUS_BYTES = 11   # status packet overhead
 READ_BYTES = 14     # a READ instruction packet
-TURN_PULSES = 4096
-_NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.MOTION_FIELDS)
-_ALL_ZERO_MOTION = (0,) * BLOCK.MOTION_FIELDS
+TURN_PULSES = model.PULSES_PER_REV
+HALF_TURN = TURN_PULSES // 2
+_NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
+BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
+BOOT_POLL_S = 0.02        # between two pings of a booting servo
+RETRY_BACKOFF_S = 0.5     # a failed restore is tried again after this
+REJOIN_INTERVAL_S = 1.0   # a servo missing after the adapter came back is probed this often
+
+
+# A servo that missed this many sync reads in a row is not retried on its own in a cycle.
+SILENT_AFTER_FAILURES = 3
 
 
 class ManagerError(Exception):
     """A failure the user must act on (missing servo, wrong model, port), said in one line."""
+
+
+class Interrupted(Exception):
+    """A stop was requested (a signal) while configuring or activating."""
 
 
 @dataclass
@@ -60,15 +77,24 @@ class Servo:
     fresh: bool = False             # state was read in the latest cycle
     comm_errors: int = 0
     consecutive_failures: int = 0
+    stale_refused: int = 0          # samples refused as older than their request
     torque_wanted: bool = False
+    torque_maybe_on: bool = False   # a torque-on was sent and no torque-off confirmed since
     goal_raw: Dict[str, int] = field(default_factory=dict)   # last goal written, per register
     last_command_s: float = 0.0     # for command_timeout
     timed_out: bool = False
     limits: Dict[str, int] = field(default_factory=dict)
+    homing_offset: int = 0          # the servo's Homing Offset, as last read or written
+    # Whole turns (pulses) the driver adds to Present Position and takes from position goals,
+    # so the joint's position stays continuous when the servo re-initialises it (torque on,
+    # mode change, reboot, power cut). Always 0 in position mode (single turn).
+    turn_offset: int = 0
+    tick: model.TickClock = field(default_factory=model.TickClock)
     restarts: int = 0
     switching: bool = False         # a mode switch is under way: commands wait for it
     recoveries: int = 0
     last_recovery_s: float = -1e9
+    status: str = ''                # what is being done to it (restoring, rebooting, ...)
 
     @property
     def name(self) -> str:
@@ -79,6 +105,14 @@ class Servo:
     def servo_id(self) -> int:
         """Return the servo id."""
         return self.joint.servo_id
+
+    def joint_pulses(self, raw: int) -> int:
+        """Return a Present Position value in the joint's continuous frame (turns kept)."""
+        return raw + self.turn_offset
+
+    def last_joint_pulses(self) -> Optional[int]:
+        """Return the last position read, in the joint's frame; None if never read."""
+        return self.state[IDX_POSITION] + self.turn_offset if self.state is not None else None
 
 
 @dataclass
@@ -130,12 +164,23 @@ def open_port(config: DriverConfig) -> Tuple[RawPort, Any]:
 PortFactory = Callable[[DriverConfig], Tuple[RawPort, Any]]
 
 
+@dataclass
+class _Reading:
+    """The cycle's sync read in flight."""
+
+    stamp: float
+    full: bool
+    length: int
+    pending: SyncRead
+
+
 class Manager:
     """Servos by joint name on one bus."""
 
     def __init__(self, config: DriverConfig, info: Log = print, warn: Log = print,
                  error: Log = print, port_factory: PortFactory = open_port,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 should_stop: Callable[[], bool] = lambda: False) -> None:
         self.config = config
         self.info = info
         self.warn = warn
@@ -143,6 +188,8 @@ class Manager:
         self.warn_throttled = Throttle(warn, clock=clock)
         self._port_factory = port_factory
         self._clock = clock
+        # Asked between transactions at configure and activate: a signal stops them promptly.
+        self.should_stop = should_stop
         self.bus: Optional[Bus] = None
         self.port: Optional[RawPort] = None
         self.sim_bus: Any = None   # the SimBus behind `port: sim`
@@ -156,8 +203,12 @@ class Manager:
         # command arriving during a read is queued at once and goes out in this cycle's write.
         # Order when both are needed: self.lock, then _queue_lock.
         self._queue_lock = threading.Lock()
+        self.tasks = TaskRunner(self._task_done, self._task_failed, clock)
+        # Transactions outside the cycle are tried this many times (lost replies happen).
+        self._attempts = max(1, config.ping_retries)
         self.cycles = 0
         self.read_failures = 0
+        self.stale_refused = 0
         self.retries = 0
         self.retry_successes = 0
         self.recoveries = 0
@@ -173,8 +224,48 @@ class Manager:
         self._last_full_s = -1e9
         self._need_full = True
         self._ids_cache: List[Tuple[Servo, int]] = []
-        self._reading: Optional[Tuple[float, bool, int]] = None   # begin_read() in flight
+        self._reading: Optional[_Reading] = None
         self._id_list: List[int] = []
+
+    # transactions outside the cycle -------------------------------------------------------
+    def _io(self) -> Bus:
+        if self.bus is None:
+            raise BusError('the bus is not open (the node is not configured)')
+        return self.bus
+
+    def _try(self, action: Callable[[], Any]) -> Any:
+        """Run a transaction, again on a lost or corrupted reply (self._attempts in all)."""
+        for attempt in range(self._attempts):
+            if self.should_stop():
+                raise Interrupted('stop requested')
+            try:
+                return action()
+            except (CommTimeout, CorruptReply):
+                if attempt + 1 >= self._attempts:
+                    raise
+
+    def _read(self, servo: Servo, name: str) -> int:
+        bus = self._io()
+        item = ct.BY_NAME[name]
+        return int(self._try(lambda: bus.read_item(servo.servo_id, item)))
+
+    def _write(self, servo: Servo, name: str, value: int) -> None:
+        bus = self._io()
+        item = ct.BY_NAME[name]
+        if name == 'torque_enable' and value:
+            servo.torque_maybe_on = True   # before: the write may land even if its reply is lost
+        self._try(lambda: bus.write_item(servo.servo_id, item, value))
+        if name == 'torque_enable' and not value:
+            servo.torque_maybe_on = False
+        elif name == 'homing_offset':
+            servo.homing_offset = value
+
+    def _write_verified(self, servo: Servo, name: str, value: int) -> None:
+        self._write(servo, name, value)
+        read_back = self._read(servo, name)
+        if read_back != value:
+            raise BusError(f'joint {servo.name!r}: {name} reads back {read_back} after writing '
+                           f'{value}', servo.servo_id)
 
     # configure / activate ---------------------------------------------------------------
     def configure(self) -> None:
@@ -186,11 +277,12 @@ class Manager:
                 raise ManagerError(str(exc)) from None
             self.bus = Bus(self.port, self.config.baud_rate,
                            latency_timer_s=self.config.latency_timer / 1000.0)
+            self.port_lost = False
             try:
                 self._find_servos()
                 for servo in self.order:
                     if servo.online:
-                        self._apply_configuration(servo)
+                        _run(self._apply_configuration(servo))
                 self._set_return_delay()
                 self._refresh_ids()
             except BusError as exc:
@@ -212,37 +304,25 @@ class Manager:
         return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
                                 rdt_raw, self.config.latency_timer / 1000.0)
 
-    def _open_bus(self) -> Bus:
-        """Return the bus; BusError (a failure a request reports) when it is not open."""
-        if self.bus is None:
-            raise BusError('the bus is not open (the node is not configured)')
-        return self.bus
-
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""
         return [servo for servo in self.order if servo.online]
 
     def _refresh_ids(self) -> None:
-        # The hot path reads these instead of rebuilding lists every cycle.
-        self._ids_cache = [(servo, servo.servo_id) for servo in self.active_servos()]
+        # The hot path reads these instead of rebuilding lists every cycle. A servo with a task
+        # in progress (being restored, rebooted, probed) is left out of the cycle's read.
+        self._ids_cache = [(servo, servo.servo_id) for servo in self.active_servos()
+                           if servo.name not in self.tasks]
         self._id_list = [servo_id for _, servo_id in self._ids_cache]
 
     def _find_servos(self) -> None:
-        assert self.bus is not None
+        bus = self._io()
         missing = []
         for servo in self.order:
-            model_number = None
-            last_error: Optional[BusError] = None
-            for _ in range(self.config.ping_retries):
-                try:
-                    model_number = self.bus.ping(servo.servo_id)
-                    break
-                except BusError as exc:
-                    last_error = exc
-                    if isinstance(exc, PortError):
-                        raise
-            if model_number is None:
-                missing.append((servo, last_error))
+            try:
+                model_number = int(self._try(lambda: bus.ping(servo.servo_id)))
+            except (CommTimeout, CorruptReply) as exc:
+                missing.append((servo, exc))
                 continue
             if model_number != ct.MODEL_NUMBER:
                 raise ManagerError(
@@ -250,10 +330,9 @@ class Manager:
                     f'expected {ct.MODEL_NUMBER} (XM430-class control table); refusing to drive '
                     'an unknown model')
             servo.model_number = model_number
-            servo.firmware_version = self.bus.read_item(servo.servo_id,
-                                                        ct.BY_NAME['firmware_version'])
+            servo.firmware_version = self._read(servo, 'firmware_version')
             servo.online = True
-            errors = self.bus.read_item(servo.servo_id, ct.BY_NAME['hardware_error_status'])
+            errors = self._read(servo, 'hardware_error_status')
             if errors:
                 self.warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
                           f'latched: {", ".join(ct.decode_hardware_errors(errors))} '
@@ -270,51 +349,46 @@ class Manager:
         if not self.active_servos():
             raise ManagerError('no configured servo answered')
 
-    def _write_verified(self, servo: Servo, name: str, value: int) -> None:
-        assert self.bus is not None
-        item = ct.BY_NAME[name]
-        self.bus.write_item(servo.servo_id, item, value)
-        read_back = self.bus.read_item(servo.servo_id, item)
-        if read_back != value:
-            raise BusError(f'joint {servo.name!r}: {name} reads back {read_back} after writing '
-                           f'{value}', servo.servo_id)
-
-    def _apply_configuration(self, servo: Servo) -> None:
+    def _apply_configuration(self, servo: Servo) -> Steps:
         """Mode, EEPROM (only where it differs), RAM registers, indirect map; torque stays off."""
-        assert self.bus is not None
-        sid = servo.servo_id
-        self.bus.write_item(sid, ct.BY_NAME['torque_enable'], 0)
+        self._write(servo, 'torque_enable', 0)
+        yield
         wanted = {'operating_mode': ct.OPERATING_MODES[servo.mode]}
         wanted.update(servo.joint.register_dict())
         changed = []
         for name, value in wanted.items():
-            item = ct.BY_NAME[name]
-            if item.area != 'eeprom':
+            if ct.BY_NAME[name].area != 'eeprom':
                 continue
-            if self.bus.read_item(sid, item) != value:
+            current = self._read(servo, name)
+            yield
+            if current != value:
                 self._write_verified(servo, name, value)
                 changed.append(f'{name}={value}')
+                yield
         if changed:
             self.info(f'joint {servo.name!r}: EEPROM written: {", ".join(changed)}')
-        self._apply_ram(servo)
+        servo.homing_offset = self._read(servo, 'homing_offset')
+        yield
+        yield from self._apply_ram(servo)
 
-    def _apply_ram(self, servo: Servo) -> None:
+    def _apply_ram(self, servo: Servo) -> Steps:
         """RAM configuration and the indirect map (lost at every reboot)."""
-        assert self.bus is not None
         for name, value in servo.joint.registers:
             if ct.BY_NAME[name].area == 'ram':
                 self._write_verified(servo, name, value)
-        self.bus.write(servo.servo_id, BLOCK.indirect_map_address(), BLOCK.indirect_map_bytes())
-        limits = ('min_position_limit', 'max_position_limit', 'velocity_limit', 'current_limit',
-                  'pwm_limit')
-        servo.limits = {name: self.bus.read_item(servo.servo_id, ct.BY_NAME[name])
-                        for name in limits}
+                yield
+        bus = self._io()
+        self._try(lambda: bus.write(servo.servo_id, BLOCK.indirect_map_address(),
+                                    BLOCK.indirect_map_bytes()))
+        yield
+        for name in ('min_position_limit', 'max_position_limit', 'velocity_limit',
+                     'current_limit', 'pwm_limit'):
+            servo.limits[name] = self._read(servo, name)
+            yield
 
     def _set_return_delay(self) -> None:
-        assert self.bus is not None
-        delays = [self.bus.read_item(servo.servo_id, ct.BY_NAME['return_delay_time'])
-                  for servo in self.active_servos()]
-        self.bus.return_delay_s = max(delays, default=250) * 2e-6
+        delays = [self._read(servo, 'return_delay_time') for servo in self.active_servos()]
+        self._io().return_delay_s = max(delays, default=250) * 2e-6
 
     def activate(self) -> None:
         """Goal = present for every servo, then torque on (if torque_on_start)."""
@@ -322,50 +396,147 @@ class Manager:
             for servo in self.active_servos():
                 servo.torque_wanted = self.config.torque_on_start
                 try:
-                    self._hold_and_enable(servo)
+                    _run(self._hold(servo))
                 except BusError as exc:
                     raise ManagerError(f'activation failed: {exc}') from None
             self._clear_pending()
             self._need_full = True
 
-    def _hold_and_enable(self, servo: Servo) -> None:
-        """Make the servo hold where it is (per mode), then set torque as wanted."""
-        assert self.bus is not None
-        sid = servo.servo_id
+    def _cbp_current(self, servo: Servo) -> int:
+        """
+        Return the goal current (the current limit) a current_based_position joint holds with.
+
+        A mode change or a reboot sets goal_current to the servo's maximum; the joint gets
+        back what it was last commanded, else what the configuration says, else current_limit.
+        """
+        limit = servo.limits.get('current_limit', ct.BY_NAME['current_limit'].initial)
+        wanted = servo.goal_raw.get('goal_current',
+                                    servo.joint.register_dict().get('goal_current', limit))
+        return max(-limit, min(limit, wanted))
+
+    def _hold(self, servo: Servo) -> Steps:
+        """
+        Make the servo hold where it is (per mode), then set torque as wanted.
+
+        Torque on re-initialises Present Position within one turn (the seed), so in the position
+        modes the goal written first must be in that frame: the servo is brought there before
+        (CLEAR, or the seed's formula when it cannot clear), and the whole turns it loses are
+        kept in the joint's turn offset. After torque on the position is read again, and a
+        frame change nobody predicted is caught at once.
+        """
+        torque = self._read(servo, 'torque_enable')
+        yield
+        present = self._read(servo, 'present_position')
+        yield
+        goal: Optional[int] = None
         if servo.mode in model.POSITION_MODES:
-            present = self.bus.read_item(sid, ct.BY_NAME['present_position'])
-            self._write_goal(servo, 'goal_position', present)
-        elif servo.mode == 'velocity':
-            self._write_goal(servo, 'goal_velocity', 0)
-        elif servo.mode == 'current':
-            # A mode change sets goal_current to the current limit: never enable with that.
-            self._write_goal(servo, 'goal_current', 0)
-        elif servo.mode == 'pwm':
-            self._write_goal(servo, 'goal_pwm', 0)
-        self.bus.write_item(sid, ct.BY_NAME['torque_enable'], int(servo.torque_wanted))
+            if not torque and servo.torque_wanted:
+                present = yield from self._into_one_turn(servo, present)
+            goal = self._clamp_position(servo, present)
+            self._write(servo, 'goal_position', goal)
+            servo.goal_raw['goal_position'] = goal
+            yield
+            if servo.mode == 'current_based_position':
+                current = self._cbp_current(servo)
+                self._write(servo, 'goal_current', current)
+                servo.goal_raw['goal_current'] = current
+                yield
+        else:
+            register = model.COMMAND_KINDS[_MODE_KIND[servo.mode]].register
+            # A mode change sets goal_current / goal_pwm to their limits: never enable with that.
+            self._write(servo, register, 0)
+            servo.goal_raw[register] = 0
+            yield
+        if servo.torque_wanted and not torque:
+            self._write(servo, 'torque_enable', 1)
+            yield
+            after = self._read(servo, 'present_position')
+            yield
+            if abs(after - present) >= HALF_TURN:
+                self._keep_turns(servo, present, after)
+                if goal is not None:
+                    goal = self._clamp_position(servo, after)
+                    self._write(servo, 'goal_position', goal)
+                    servo.goal_raw['goal_position'] = goal
+                    yield
+        elif not servo.torque_wanted and torque:
+            self._write(servo, 'torque_enable', 0)
+            yield
         servo.last_command_s = self._clock()
         servo.timed_out = False
 
-    def _write_goal(self, servo: Servo, register: str, value: int) -> None:
-        assert self.bus is not None
-        self.bus.write_item(servo.servo_id, ct.BY_NAME[register], value)
-        servo.goal_raw[register] = value
+    def _into_one_turn(self, servo: Servo, present: int) -> Generator[None, None, int]:
+        """Bring Present Position within one turn before torque on; return its new value."""
+        homing = servo.homing_offset
+        if homing <= present < homing + TURN_PULSES:
+            return present
+        bus = self._io()
+        try:
+            self._try(lambda: bus.clear_multi_turn(servo.servo_id))
+            yield
+            after = self._read(servo, 'present_position')
+            yield
+        except StatusError:
+            # CLEAR refused (the horn is moving, or an older firmware): torque on will do the
+            # same re-initialisation, by the seed's formula.
+            after = model.reinit_position(present, homing)
+        self._keep_turns(servo, present, after)
+        return after
 
-    def deactivate(self) -> None:
-        """Torque off (if torque_off_on_shutdown); pending goals dropped."""
+    def _keep_turns(self, servo: Servo, before_raw: int, after_raw: int) -> None:
+        """Keep the joint's position continuous after the servo re-initialised its position."""
+        if servo.mode == 'position':
+            servo.turn_offset = 0
+            return
+        servo.turn_offset += model.kept_turns(before_raw, after_raw)
+
+    def _clamp_position(self, servo: Servo, raw: int) -> int:
+        if servo.mode == 'position' and servo.limits:
+            return min(max(raw, servo.limits['min_position_limit']),
+                       servo.limits['max_position_limit'])
+        return min(max(raw, -ct.EXTENDED_POSITION_LIMIT), ct.EXTENDED_POSITION_LIMIT)
+
+    def deactivate(self) -> List[str]:
+        """
+        Torque off (if torque_off_on_shutdown); pending goals and tasks dropped.
+
+        Returns what could not be done, one line per servo (empty: every torque-off was
+        acknowledged).
+        """
         with self.lock:
             self._clear_pending()
-            if not self.config.torque_off_on_shutdown or self.bus is None:
-                return
-            for servo in self.active_servos():
-                try:
-                    self.bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
-                except BusError as exc:
-                    self.warn(f'joint {servo.name!r}: torque off failed: {exc}')
+            self.tasks.cancel_all('the node is stopping')
+            self._refresh_ids()
+            if not self.config.torque_off_on_shutdown:
+                return []
+            return self.torque_off_all()
+
+    def torque_off_all(self) -> List[str]:
+        """Torque off every servo that may have torque on; return the failures."""
+        with self.lock:
+            if self.bus is None:
+                return [f'joint {s.name!r}: the port is closed' for s in self.order
+                        if s.torque_maybe_on]
+            failures = []
+            stop, self.should_stop = self.should_stop, lambda: False   # a signal must not cut it
+            try:
+                for servo in self.order:
+                    if not (servo.online or servo.torque_maybe_on):
+                        continue
+                    try:
+                        self._write(servo, 'torque_enable', 0)
+                    except BusError as exc:
+                        failures.append(f'joint {servo.name!r}: {exc}')
+            finally:
+                self.should_stop = stop
+            return failures
 
     def close(self) -> None:
         """Close the port."""
         with self.lock:
+            if self._reading is not None and self.bus is not None:
+                self.bus.abort(self._reading.pending)
+                self._reading = None
             if self.bus is not None:
                 self.bus.close()
             self.bus = None
@@ -376,198 +547,310 @@ class Manager:
         """
         Read every servo's state with one sync read; return the read's monotonic time.
 
-        The motion part of the block is read every cycle; the whole block (health too) when
-        `full`, or by default every health_period_s, when a servo raised its alert bit, or when
-        a servo has no health values yet. A servo whose reply was lost or corrupted is read again
-        on its own (read_retries times) while the clock is before retry_until (the cycle's
-        budget). A servo that still does not answer well keeps fresh False: it is left out of
-        what is published, never given a stale or invented value.
+        The motion part of the block is read every cycle (with the Realtime Tick while the bus
+        is suspicious); the whole block (health too) when `full`, or by default every
+        health_period_s, when a servo raised its alert bit, or when a servo has no health values
+        yet. A servo whose reply was lost or corrupted is read again on its own (read_retries
+        times) while the clock is before retry_until (the cycle's budget). A servo that still
+        does not answer well, or whose sample is older than its request, keeps fresh False: it
+        is left out of what is published, never given a stale or invented value.
         """
-        self.begin_read(full)
-        return self.end_read(retry_until)
+        if self.begin_read(full):
+            self.end_read(retry_until)
+        return self.last_read_time
 
-    def begin_read(self, full: Optional[bool] = None) -> None:
+    def begin_read(self, full: Optional[bool] = None) -> bool:
         """
         Put the cycle's sync read on the wire and return; end_read() collects it.
 
-        The manager's lock (and the bus's) stay held until end_read(), in the same thread: in
-        between, the caller may only do work that needs neither (publishing the last cycle).
+        The manager's lock (and the bus's) stay held until end_read() or abort_read(), in the
+        same thread: in between, the caller may only do work that needs neither (publishing the
+        last cycle). False (nothing in flight, no lock held) when no servo is to be read.
         """
         self.lock.acquire()
         try:
-            assert self.bus is not None
+            bus = self._io()
+            if not self._id_list:
+                self.lock.release()
+                return False
             stamp = self._clock()
             if full is None:
                 full = (stamp - self._last_full_s >= self.health_period_s
                         or self._need_full)
-            length = BLOCK.size if full else BLOCK.motion_size
-            self.bus.sync_read_begin(BLOCK.read_address, length, self._id_list)
+            if full:
+                length = BLOCK.size
+            elif bus.dirty:
+                length = BLOCK.tagged_size
+            else:
+                length = BLOCK.motion_size
+            pending = bus.begin_sync_read(BLOCK.read_address, length, self._id_list)
         except BaseException:
             self.lock.release()
             raise
-        self._reading = (stamp, full, length)
+        self._reading = _Reading(stamp, full, length, pending)
+        return True
 
-    def end_read(self, retry_until: Optional[float] = None) -> float:
-        """Collect the sync read begun by begin_read(); return its monotonic time."""
+    def abort_read(self) -> None:
+        """Give up the sync read in flight, if any, and release the locks (idempotent)."""
+        reading = self._reading
+        if reading is None:
+            return
+        self._reading = None
         try:
-            assert self.bus is not None and self._reading is not None
-            stamp, full, length = self._reading
-            self._reading = None
-            results = self.bus.sync_read_end()
-            if (retry_until is not None and self.config.read_retries
-                    and not self.bus.last_read_clean):
-                self._retry_failed(results, length, retry_until)
-            self._need_full = False
-            if full:
-                self._last_full_s = stamp
-            self._take_results(results, full, stamp)
-            self.cycles += 1
-            self.last_read_time = stamp
-            return stamp
+            if self.bus is not None:
+                self.bus.abort(reading.pending)
         finally:
             self.lock.release()
 
-    def _take_results(self, results: Dict[int, Any], full: bool, stamp: float) -> None:
-        alerts = self.bus.alerts if self.bus is not None else {}
-        decode = BLOCK.decode if full else BLOCK.decode_motion
+    def end_read(self, retry_until: Optional[float] = None) -> float:
+        """Collect the sync read begun by begin_read(); return its monotonic time."""
+        reading = self._reading
+        if reading is None:
+            raise RuntimeError('end_read() without a read in flight')
+        self._reading = None
+        try:
+            bus = self._io()
+            result = bus.end_sync_read(reading.pending)
+            received = self._clock()
+            if (retry_until is not None and self.config.read_retries
+                    and not result.clean):
+                self._retry_failed(result, reading.length, retry_until)
+            self._need_full = False
+            if reading.full:
+                self._last_full_s = reading.stamp
+            self._take_results(result, reading.length, reading.stamp, received)
+            self.cycles += 1
+            self.last_read_time = reading.stamp
+            return reading.stamp
+        finally:
+            self.lock.release()
+
+    def _take_results(self, result: SyncResult, length: int, stamp: float,
+                      received: float) -> None:
         for servo, servo_id in self._ids_cache:
-            data = results.get(servo_id)
-            if isinstance(data, bytes):
-                values = decode(data)
-                if not full and values == _ALL_ZERO_MOTION:
-                    # What a restarted servo returns (its indirect map is gone) - or a horn at
-                    # exactly -pi, at rest: ask for the whole block, canary included, to know.
-                    whole = self._check_restart(servo)
-                    if whole is None:
-                        continue
-                    servo.state = whole
-                    servo.health_time = stamp
-                    values = whole[:BLOCK.MOTION_FIELDS]
-                elif full and values[IDX_CANARY] == 0:
-                    servo.fresh = False
-                    self._recover_restart(servo)
+            data = result.data.get(servo_id)
+            if not isinstance(data, bytes):
+                self._read_failed(servo, data)
+                continue
+            size = len(data)   # a retry may have read more than the sync read
+            values = BLOCK.decoder(size)(data)
+            full = size == BLOCK.size
+            if not values[0] and not values[1] and not values[2] and not full:
+                # What a restarted servo returns (its indirect map is gone) - or a horn at
+                # exactly -pi, at rest: ask for the whole block, canary included, to know.
+                checked = self._check_restart(servo)
+                if checked is None:
                     continue
-                if full:
-                    servo.state = values
-                    servo.health_time = stamp
-                elif servo.state is not None:
-                    servo.state = values + servo.state[BLOCK.MOTION_FIELDS:]
-                else:
-                    # Motion is good; the health part is not known yet (health_time 0).
-                    servo.state = values + _NO_HEALTH
-                    self._need_full = True
-                if alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
-                    self._need_full = True   # a new hardware error: decode it next cycle
-                servo.state_time = stamp
-                servo.fresh = True
-                servo.consecutive_failures = 0
-            else:
+                values = checked
+                full = True
+            elif full and values[IDX_CANARY] == 0:
                 servo.fresh = False
-                servo.comm_errors += 1
-                servo.consecutive_failures += 1
-                self.read_failures += 1
-                self.warn_throttled(f'read:{servo.name}',
-                                    f'joint {servo.name!r}: state read failed: {data}')
+                self._restarted(servo)
+                continue
+            elif size != BLOCK.motion_size:
+                sent_s, received_s = result.dated.get(servo_id, (result.sent_s, received))
+                if not servo.tick.check(values[IDX_TICK], sent_s, received_s):
+                    self._refuse_stale(servo)
+                    continue
+            if full:
+                servo.state = values
+                servo.health_time = stamp
+            elif servo.state is not None:
+                servo.state = values[:BLOCK.MOTION_FIELDS] + servo.state[BLOCK.MOTION_FIELDS:]
+            else:
+                # Motion is good; the health part is not known yet (health_time 0).
+                servo.state = values[:BLOCK.MOTION_FIELDS] + (0,) + _NO_HEALTH
+                self._need_full = True
+            if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
+                self._need_full = True   # a new hardware error: decode it next cycle
+            servo.state_time = stamp
+            servo.fresh = True
+            servo.consecutive_failures = 0
+
+    def _read_failed(self, servo: Servo, error: Any) -> None:
+        servo.fresh = False
+        servo.comm_errors += 1
+        servo.consecutive_failures += 1
+        self.read_failures += 1
+        self.warn_throttled(f'read:{servo.name}', f'joint {servo.name!r}: state read failed: '
+                            f'{error}')
+
+    def _refuse_stale(self, servo: Servo) -> None:
+        servo.fresh = False
+        servo.stale_refused += 1
+        self.stale_refused += 1
+        self.warn_throttled(f'stale:{servo.name}',
+                            f'joint {servo.name!r}: refused a reply older than its request '
+                            '(a late reply of an earlier one); nothing published for it')
 
     def _check_restart(self, servo: Servo) -> Optional[Tuple[int, ...]]:
         """
         Read the whole block of a servo whose motion read was all zeros.
 
-        Returns the block when the servo did not restart; None when it did (it is then
-        restored) or when it did not answer.
+        Returns the block when the servo did not restart; None when it did (its restore is
+        then started) or when it did not answer.
         """
-        assert self.bus is not None
+        bus = self._io()
         try:
-            values = BLOCK.decode(self.bus.read(servo.servo_id, BLOCK.read_address, BLOCK.size))
-        except PortError:
-            raise
-        except BusError:
-            servo.fresh = False
-            return None
-        if values[IDX_CANARY] == 0:
-            servo.fresh = False
-            self._recover_restart(servo)
-            return None
-        return values
-
-    def _retry_failed(self, results: Dict[int, Any], length: int, until: float) -> None:
-        assert self.bus is not None
-        one_read_s = self.bus.reply_timeout_s(STATUS_BYTES + length, 1, READ_BYTES)
-        for servo_id, data in results.items():
-            if isinstance(data, bytes) or isinstance(data, StatusError):
-                continue   # a status error is the servo's answer: asking again changes nothing
-            for _ in range(self.config.read_retries):
-                if self._clock() + one_read_s > until:
-                    return
-                self.retries += 1
-                try:
-                    results[servo_id] = self.bus.read(servo_id, BLOCK.read_address, length)
-                    self.retry_successes += 1
-                    break
-                except PortError:
-                    raise
-                except BusError as exc:
-                    results[servo_id] = exc
-
-    def _recover_restart(self, servo: Servo) -> None:
-        """Give a servo that restarted on its own (power cut, brown-out) its setup back."""
-        servo.restarts += 1
-        self._need_full = True
-        self.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
-                  'restoring its configuration, mode and torque')
-        try:
-            self._restore(servo, last_position=self._last_position(servo))
+            data, sent_s = bus.read_dated(servo.servo_id, BLOCK.read_address, BLOCK.size)
         except PortError:
             raise
         except BusError as exc:
-            self.warn_throttled(f'restore:{servo.name}',
-                                f'joint {servo.name!r}: restore after restart failed: {exc}')
+            self._read_failed(servo, exc)
+            return None
+        values = BLOCK.decode(data)
+        if values[IDX_CANARY] == 0:
+            servo.fresh = False
+            self._restarted(servo)
+            return None
+        if not servo.tick.check(values[IDX_TICK], sent_s, self._clock()):
+            self._refuse_stale(servo)
+            return None
+        return values
 
-    @staticmethod
-    def _last_position(servo: Servo) -> Optional[int]:
-        return servo.state[IDX_POSITION] if servo.state is not None else None
+    def _retry_failed(self, result: SyncResult, length: int, until: float) -> None:
+        bus = self._io()
+        # A retry always reads the tick: the bus is suspicious after a failure.
+        length = max(length, BLOCK.tagged_size)
+        one_read_s = bus.reply_timeout_s(STATUS_BYTES + length, 1, READ_BYTES)
+        silent = {servo.servo_id for servo, _ in self._ids_cache
+                  if servo.consecutive_failures >= SILENT_AFTER_FAILURES}
+        for servo_id, data in list(result.data.items()):
+            if isinstance(data, (bytes, StatusError)):
+                continue   # a status error is the servo's answer: asking again changes nothing
+            if servo_id in silent:
+                continue   # gone for now: the sync read keeps asking; retries serve the others
+            for _ in range(self.config.read_retries):
+                if self._clock() + one_read_s > until:
+                    break
+                self.retries += 1
+                try:
+                    answer, sent_s = bus.read_dated(servo_id, BLOCK.read_address, length)
+                except PortError:
+                    raise
+                except BusError as exc:
+                    result.data[servo_id] = exc
+                    continue
+                self.retry_successes += 1
+                result.data[servo_id] = answer
+                result.dated[servo_id] = (sent_s, self._clock())
+                break
 
-    def _keep_turns(self, servo: Servo, last_position: int) -> None:
-        """
-        Keep the multi-turn position continuous across a reboot.
-
-        A reboot re-initialises Present Position within one turn (the seed); adding the lost
-        whole turns to the Homing Offset (EEPROM, torque is off here) puts the count back where
-        it was. It assumes the horn moved less than half a turn while the servo was down.
-        """
-        assert self.bus is not None
-        sid = servo.servo_id
-        present = self.bus.read_item(sid, ct.BY_NAME['present_position'])
-        turns = int(round((last_position - present) / TURN_PULSES))
-        if not turns:
+    def _restarted(self, servo: Servo) -> None:
+        """Restore a servo that restarted on its own (power cut, brown-out), step by step."""
+        if servo.name in self.tasks:
             return
-        offset = self.bus.read_item(sid, ct.BY_NAME['homing_offset'])
-        wanted = offset + turns * TURN_PULSES
-        if abs(wanted) > ct.HOMING_OFFSET_LIMIT:
-            self.warn(f'joint {servo.name!r}: cannot keep its position across the reboot: '
-                      f'{turns} turns exceed the homing offset range')
-            return
-        self._write_verified(servo, 'homing_offset', wanted)
-        self.info(f'joint {servo.name!r}: position kept continuous across the reboot '
-                  f'({turns:+d} turns via homing_offset {wanted})')
+        servo.restarts += 1
+        self.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
+                  'restoring its configuration and mode; it will hold where it is')
+        self._start_task(servo, 'restore', self._restore(servo, servo.last_joint_pulses()))
 
-    def _restore(self, servo: Servo, hold_last_goal: bool = True,
-                 last_position: Optional[int] = None) -> None:
-        """Restore configuration, mode, goal and torque after a reboot."""
-        assert self.bus is not None
-        self._apply_configuration(servo)
-        if last_position is not None and servo.mode != 'position':
-            self._keep_turns(servo, last_position)
-        goal = servo.goal_raw.get('goal_position')
-        self._hold_and_enable(servo)
-        if (hold_last_goal and servo.torque_wanted and servo.mode in model.POSITION_MODES
-                and goal is not None):
-            # Torque on holds where the horn is now; then back to the goal it was given (the
-            # servo's profile makes that a smooth move if the horn sagged while unpowered).
-            if servo.mode == 'position':
-                goal = min(max(goal, servo.limits['min_position_limit']),
-                           servo.limits['max_position_limit'])
-            self._write_goal(servo, 'goal_position', goal)
+    def _restore(self, servo: Servo, last_joint_pulses: Optional[int]) -> Steps:
+        """
+        Give a restarted servo its setup back and make it hold where it is.
+
+        The servo's RAM is back to its defaults and its position was re-initialised within one
+        turn: the configuration is written again, the lost whole turns go into the joint's turn
+        offset (assuming the horn moved less than half a turn while it was down), and it holds
+        where it is (goal = present; velocity, current and PWM goals 0): a goal nobody sent
+        again is never replayed, a wheel does not start turning again by itself.
+        """
+        servo.tick.reset()
+        servo.status = 'restoring'
+        yield from self._apply_configuration(servo)
+        present = self._read(servo, 'present_position')
+        yield
+        if servo.mode == 'position':
+            servo.turn_offset = 0
+        elif last_joint_pulses is not None:
+            servo.turn_offset = model.kept_turns(last_joint_pulses, present)
+        for register in list(servo.goal_raw):
+            if register != 'goal_current' or servo.mode != 'current_based_position':
+                del servo.goal_raw[register]
+        yield from self._hold(servo)
+        servo.status = ''
+
+    def _reboot(self, servo: Servo) -> Steps:
+        """REBOOT one servo, wait for it to boot, give it its setup back holding where it is."""
+        servo.status = 'rebooting'
+        last = servo.last_joint_pulses()
+        bus = self._io()
+        try:
+            last = servo.joint_pulses(self._read(servo, 'present_position'))
+            yield
+        except (CommTimeout, CorruptReply, StatusError):
+            pass   # a servo in trouble may not answer reads: the last good state will do
+        servo.torque_maybe_on = False   # a reboot clears torque enable
+        self._try(lambda: bus.reboot(servo.servo_id))
+        yield
+        deadline = self._clock() + BOOT_TIMEOUT_S
+        next_ping = self._clock() + BOOT_POLL_S
+        while True:
+            while self._clock() < next_ping:
+                yield   # booting: nothing to ask yet
+            try:
+                bus.ping(servo.servo_id)
+                break
+            except CommTimeout:
+                if self._clock() > deadline:
+                    raise CommTimeout(f'id {servo.servo_id}: did not answer within '
+                                      f'{BOOT_TIMEOUT_S:g} s of its reboot', servo.servo_id)
+                next_ping = self._clock() + BOOT_POLL_S
+                yield
+        yield from self._restore(servo, last)
+
+    def _rejoin(self, servo: Servo) -> Steps:
+        """After the adapter came back: find the servo, restore it if it lost power."""
+        servo.status = 'not answering since the adapter came back'
+        bus = self._io()
+        bus.ping(servo.servo_id)
+        yield
+        values = BLOCK.decode(bus.read(servo.servo_id, BLOCK.read_address, BLOCK.size))
+        yield
+        servo.status = ''
+        if values[IDX_CANARY] != 0:
+            servo.tick.reset()
+            return   # it kept its power and its setup: it holds what it held
+        servo.restarts += 1
+        yield from self._restore(servo, servo.last_joint_pulses())
+
+    def _start_task(self, servo: Servo, kind: str, steps: Steps,
+                    not_before_s: float = 0.0) -> Task:
+        servo.fresh = False
+        self._pending_drop(servo)
+        task = self.tasks.add(Task(servo.name, kind, steps, not_before_s))
+        self._refresh_ids()
+        return task
+
+    def _task_done(self, task: Task) -> None:
+        servo = self.servos[task.joint]
+        servo.status = ''
+        self._need_full = True
+        self._refresh_ids()
+        if task.kind == 'restore':
+            self.info(f'joint {servo.name!r}: restored after its restart, holding where it is')
+        elif task.kind == 'recover':
+            servo.health_time = 0.0
+            self.info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+        elif task.kind == 'rejoin':
+            self.info(f'joint {servo.name!r}: answering again')
+
+    def _task_failed(self, task: Task, exc: Exception) -> None:
+        servo = self.servos[task.joint]
+        if isinstance(exc, PortError):
+            raise exc
+        if task.kind == 'reboot':
+            servo.status = ''
+            self._refresh_ids()
+            return   # the service that asked reports it
+        # Restores and probes are tried again until they work: the servo is of no use before.
+        retry = REJOIN_INTERVAL_S if task.kind == 'rejoin' else RETRY_BACKOFF_S
+        self.warn_throttled(f'task:{servo.name}',
+                            f'joint {servo.name!r}: {task.kind} failed ({exc}); trying again')
+        steps = (self._rejoin(servo) if task.kind == 'rejoin'
+                 else self._restore(servo, servo.last_joint_pulses()))
+        self._start_task(servo, task.kind if task.kind != 'recover' else 'restore', steps,
+                         self._clock() + retry)
 
     def recover_hardware_errors(self) -> None:
         """With hardware_error_recovery: reboot a faulty servo alone, rate-limited, restored."""
@@ -577,7 +860,8 @@ class Manager:
             now = self._clock()
             for servo in self.active_servos():
                 state = servo.state
-                if not servo.health_time or state is None or not state[IDX_HW_ERROR]:
+                if (not servo.health_time or state is None or not state[IDX_HW_ERROR]
+                        or servo.name in self.tasks):
                     continue
                 if now - servo.last_recovery_s < self.config.recovery_interval:
                     continue
@@ -587,21 +871,9 @@ class Manager:
                 errors = ', '.join(ct.decode_hardware_errors(state[IDX_HW_ERROR]))
                 self.warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
                           f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
-                try:
-                    self._reboot_and_restore(servo)
-                except PortError:
-                    raise
-                except BusError as exc:
-                    self.warn(f'joint {servo.name!r}: recovery failed: {exc}')
-                    continue
-                servo.health_time = 0.0
-                self.info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+                self._start_task(servo, 'recover', self._reboot(servo))
 
     # port loss ------------------------------------------------------------------------------
-    def cycle_read(self, retry_until: Optional[float] = None) -> bool:
-        """Read states unless the port is lost; False when nothing was read this cycle."""
-        return self.cycle_begin() and self.cycle_end(retry_until)
-
     def cycle_begin(self) -> bool:
         """begin_read() unless the port is lost; False when no read is in flight."""
         if self.port_lost:
@@ -609,12 +881,11 @@ class Manager:
                 if not self._reconnect():
                     return False
         try:
-            self.begin_read()
+            return self.begin_read()
         except PortError as exc:
             with self.lock:
                 self._lose_port(exc)
             return False
-        return True
 
     def cycle_end(self, retry_until: Optional[float] = None) -> bool:
         """end_read() of a cycle_begin(); False when the port was lost meanwhile."""
@@ -626,58 +897,70 @@ class Manager:
             return False
         return True
 
-    def cycle_write(self) -> None:
-        """Command timeouts, pending goals, hardware-error recovery; port loss handled."""
+    def cycle_read(self, retry_until: Optional[float] = None) -> bool:
+        """Read states unless the port is lost; False when nothing was read this cycle."""
+        return self.cycle_begin() and self.cycle_end(retry_until)
+
+    def cycle_write(self, tasks_until: Optional[float] = None) -> None:
+        """Command timeouts, pending goals, recovery steps; port loss handled."""
         with self.lock:
-            if self.port_lost:
+            if self.port_lost or self.bus is None:
                 return
             try:
                 self.check_command_timeout()
                 self.write_pending()
                 self.recover_hardware_errors()
+                if tasks_until is not None:
+                    self.tasks.run(tasks_until)
             except PortError as exc:
                 self._lose_port(exc)
 
     def _lose_port(self, exc: BusError) -> None:
+        if self.port_lost:
+            return
         self.port_lost = True
         self.port_error = str(exc)
         self._clear_pending()
+        self.tasks.cancel_all('the port was lost')
         for servo in self.order:
             servo.fresh = False
+            servo.status = ''
+        self._refresh_ids()
         self.error(f'{self.config.port}: {exc}. The node stays up and reconnects when the '
-                   'device returns.')
+                   'device returns; pending goals were dropped.')
         if self.sim_bus is None and self.bus is not None:
             self.bus.close()
         self._next_reconnect_s = self._clock() + self.reconnect_interval_s
 
     def _reconnect(self) -> bool:
-        """Try to get the port and the servos back; True when done."""
+        """
+        Try to get the port back; True when it is.
+
+        Every servo then rejoins on its own (a task each): one that kept its power goes on
+        holding what it held, one that lost it is restored to hold where it is, and one that
+        does not answer is probed every second without holding up the others.
+        """
         now = self._clock()
         if now < self._next_reconnect_s:
             return False
         self._next_reconnect_s = now + self.reconnect_interval_s
-        assert self.bus is not None
+        bus = self._io()
         try:
             if self.sim_bus is None:
                 # A real adapter comes back as a new device: open it again.
                 self.port, _ = self._port_factory(self.config)
-                self.bus.port = self.port
-            for servo in self.active_servos():
-                self.bus.ping(servo.servo_id)
-            results = self.bus.sync_read(BLOCK.read_address, BLOCK.size, self._id_list)
-            for servo, servo_id in self._ids_cache:
-                data = results.get(servo_id)
-                if isinstance(data, bytes) and BLOCK.decode(data)[IDX_CANARY] != 0:
-                    continue   # kept its power and its setup: leave it as it is
-                # It lost power with the adapter: setup, hold where it is, torque back.
-                self._restore(servo, hold_last_goal=False,
-                              last_position=self._last_position(servo))
+                bus.port = self.port
+            else:
+                bus.port.in_waiting   # raises while the simulated adapter is unplugged
         except (BusError, OSError):
             return False
         self.port_lost = False
         self.port_error = ''
         self._need_full = True
-        self.info(f'{self.config.port}: port back, {len(self.active_servos())} servos restored')
+        bus.mark_dirty()
+        for servo in self.active_servos():
+            self._start_task(servo, 'rejoin', self._rejoin(servo))
+        self.info(f'{self.config.port}: port back; checking {len(self.active_servos())} servos')
         return True
 
     def write_pending(self) -> int:
@@ -707,7 +990,7 @@ class Manager:
                 if servo.timed_out or servo.mode in model.POSITION_MODES:
                     continue
                 if now - servo.last_command_s > timeout:
-                    register = model.COMMAND_KINDS[servo.mode].register
+                    register = model.COMMAND_KINDS[_MODE_KIND[servo.mode]].register
                     if servo.goal_raw.get(register, 0) != 0:
                         self._queue(servo, register, 0)
                         self.warn(f'joint {servo.name!r}: no {servo.mode} command for '
@@ -735,6 +1018,8 @@ class Manager:
                           'same length')
         if len(set(names)) != len(names):
             return None, 'a joint is named twice'
+        if self.port_lost:
+            return None, f'the port is lost ({self.port_error}): no goal can be written'
         command = model.COMMAND_KINDS[kind]
         goals = []
         for name, value in zip(names, values):
@@ -747,32 +1032,30 @@ class Manager:
                 return None, f'joint {name!r}: {value} is not a finite number'
             if servo.switching:
                 return None, f'joint {name!r} is changing its operating mode: try again'
+            if servo.name in self.tasks:
+                return None, (f'joint {name!r} is {servo.status or "busy"}: it takes goals '
+                              'again once that is done')
             if kind not in model.MODE_COMMANDS[servo.mode]:
                 return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
                               'apply to it')
             if abs(value) > 1e9:
                 return None, f'joint {name!r}: {value} {command.unit} is out of any range'
-            raw = command.to_raw(value)
+            offset = servo.turn_offset if kind == 'position' else 0
+            raw = command.to_raw(value) - offset
             clamped = self._clamp(servo, command.register, raw)
             if clamped != raw:
                 self.warn_throttled(
                     f'clamp:{name}:{kind}',
                     f'joint {name!r}: {kind} goal {value:g} {command.unit} clamped to '
-                    f'{command.to_si(clamped):g} {command.unit} (servo limit)')
+                    f'{command.to_si(clamped + offset):g} {command.unit} (servo limit)')
             goals.append((servo, command.register, clamped))
         return goals, ''
 
     def _clamp(self, servo: Servo, register: str, raw: int) -> int:
-        limits = servo.limits
         if register == 'goal_position':
-            if servo.mode == 'position':
-                low, high = limits['min_position_limit'], limits['max_position_limit']
-            else:
-                low, high = -ct.EXTENDED_POSITION_LIMIT, ct.EXTENDED_POSITION_LIMIT
-        else:
-            bound = limits[ct.BY_NAME[register].limit or '']
-            low, high = -bound, bound
-        return min(max(raw, low), high)
+            return self._clamp_position(servo, raw)
+        bound = servo.limits[ct.BY_NAME[register].limit or '']
+        return min(max(raw, -bound), bound)
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Queue goals (topic path): written by the next cycle's sync write."""
@@ -795,22 +1078,44 @@ class Manager:
                 return result
             try:
                 self.write_pending()
+            except PortError as exc:
+                self._lose_port(exc)
+                return Result(False, f'goals not written: {exc}')
             except BusError as exc:
                 return Result(False, f'goals not written: {exc}')
             return Result(True, f'{len(names)} {kind} goals written')
 
-    def _servos_named(self, names: Sequence[str]) -> Tuple[Optional[List[Servo]], str]:
+    def _servos_named(self, names: Sequence[str],
+                      busy_ok: bool = False) -> Tuple[Optional[List[Servo]], str]:
+        if self.port_lost:
+            return None, f'the port is lost ({self.port_error}); try again when it is back'
         if not names:
-            return self.active_servos(), ''
-        servos = []
-        for name in names:
-            servo = self.servos.get(name)
-            if servo is None:
-                return None, f'unknown joint {name!r}'
-            if not servo.online:
-                return None, f'joint {name!r} is not on the bus'
-            servos.append(servo)
+            servos = self.active_servos()
+        else:
+            servos = []
+            for name in names:
+                servo = self.servos.get(name)
+                if servo is None:
+                    return None, f'unknown joint {name!r}'
+                if not servo.online:
+                    return None, f'joint {name!r} is not on the bus'
+                servos.append(servo)
+        if not busy_ok:
+            for servo in servos:
+                if servo.name in self.tasks:
+                    return None, (f'joint {servo.name!r} is {servo.status or "busy"}: try '
+                                  'again in a moment')
         return servos, ''
+
+    def _request(self, what: str, action: Callable[[], Result]) -> Result:
+        """Run a service's bus work: a lost port is handled, a bus failure is the answer."""
+        try:
+            return action()
+        except PortError as exc:
+            self._lose_port(exc)
+            return Result(False, f'{what} failed: {exc}')
+        except Interrupted:
+            return Result(False, f'{what} interrupted: the node is stopping')
 
     def set_torque(self, names: Sequence[str], enable: bool) -> Result:
         """Torque on (goal = present first) or off."""
@@ -818,18 +1123,23 @@ class Manager:
             servos, reason = self._servos_named(names)
             if servos is None:
                 return Result(False, reason)
-            try:
-                for servo in servos:
-                    servo.torque_wanted = enable
-                    self._pending_drop(servo)
-                    if enable:
-                        self._hold_and_enable(servo)
-                    else:
-                        self._open_bus().write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
-            except BusError as exc:
-                return Result(False, f'torque {"on" if enable else "off"} failed: {exc}')
-            return Result(True, f'torque {"on" if enable else "off"} for '
-                          f'{", ".join(s.name for s in servos)}')
+            word = 'on' if enable else 'off'
+
+            def action() -> Result:
+                try:
+                    for servo in servos:
+                        servo.torque_wanted = enable
+                        self._pending_drop(servo)
+                        if enable:
+                            _run(self._hold(servo))
+                        else:
+                            self._write(servo, 'torque_enable', 0)
+                except BusError as exc:
+                    if isinstance(exc, PortError):
+                        raise
+                    return Result(False, f'torque {word} failed: {exc}')
+                return Result(True, f'torque {word} for {", ".join(s.name for s in servos)}')
+            return self._request(f'torque {word}', action)
 
     def _clear_pending(self) -> None:
         with self._queue_lock:
@@ -851,96 +1161,118 @@ class Manager:
             servos, reason = self._servos_named(names)
             if servos is None:
                 return Result(False, reason)
-            done = []
-            try:
-                for servo in servos:
-                    with self._queue_lock:
-                        servo.switching = True
-                        for goals in self._pending.values():
-                            goals.pop(servo.servo_id, None)
-                    bus = self._open_bus()
-                    bus.write_item(servo.servo_id, ct.BY_NAME['torque_enable'], 0)
-                    bus.write_item(servo.servo_id, ct.BY_NAME['operating_mode'],
-                                   ct.OPERATING_MODES[mode])
-                    servo.mode = mode
-                    servo.goal_raw.clear()
-                    if mode == 'position':
-                        self._single_turn_homing(servo)
-                    # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were
-                    # reset by the mode change; give back what the configuration set.
-                    for name, value in servo.joint.registers:
-                        if name in model.MODE_CHANGE_RESETS:
-                            self._write_verified(servo, name, value)
-                    self._hold_and_enable(servo)
-                    done.append(servo.name)
-            except BusError as exc:
-                for servo in servos:
-                    self._resync_mode(servo)
-                return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
-            finally:
-                for servo in servos:
-                    servo.switching = False
-            return Result(True, f'{", ".join(done)} now in {mode} mode')
+            done: List[str] = []
 
-    def _single_turn_homing(self, servo: Servo) -> None:
-        # Turns kept across reboots live in the homing offset; position mode ignores an offset
-        # beyond +-1024 (the seed), so give it back the configured one (or none).
-        assert self.bus is not None
-        item = ct.BY_NAME['homing_offset']
-        offset = self.bus.read_item(servo.servo_id, item)
+            def action() -> Result:
+                try:
+                    for servo in servos:
+                        _run(self._switch_mode(servo, mode))
+                        done.append(servo.name)
+                except BusError as exc:
+                    if isinstance(exc, PortError):
+                        raise
+                    for servo in servos:
+                        self._resync_mode(servo)
+                    return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
+                finally:
+                    for servo in servos:
+                        servo.switching = False
+                return Result(True, f'{", ".join(done)} now in {mode} mode')
+            return self._request('mode change', action)
+
+    def _switch_mode(self, servo: Servo, mode: str) -> Steps:
+        with self._queue_lock:
+            servo.switching = True
+            for goals in self._pending.values():
+                goals.pop(servo.servo_id, None)
+        self._write(servo, 'torque_enable', 0)
+        yield
+        before = self._read(servo, 'present_position')
+        yield
+        self._write(servo, 'operating_mode', ct.OPERATING_MODES[mode])
+        yield
+        servo.mode = mode
+        servo.goal_raw.clear()
+        after = self._read(servo, 'present_position')
+        yield
+        # A mode change re-initialises Present Position within one turn (the seed).
+        if mode == 'position':
+            servo.turn_offset = 0
+            yield from self._single_turn_homing(servo)
+        else:
+            self._keep_turns(servo, before, after)
+        # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were reset by
+        # the mode change; give back what the configuration set.
+        for name, value in servo.joint.registers:
+            if name in model.MODE_CHANGE_RESETS:
+                self._write_verified(servo, name, value)
+                yield
+        yield from self._hold(servo)
+
+    def _single_turn_homing(self, servo: Servo) -> Steps:
+        # Position mode ignores a homing offset beyond +-1024 (the seed): one left over from
+        # another mode is put back to the configured one.
+        offset = self._read(servo, 'homing_offset')
+        yield
         if abs(offset) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
             self._write_verified(servo, 'homing_offset',
                                  servo.joint.register_dict().get('homing_offset', 0))
+            yield
 
     def _resync_mode(self, servo: Servo) -> None:
         """After a failure, believe the servo about its mode."""
-        assert self.bus is not None
         try:
-            raw = self.bus.read_item(servo.servo_id, ct.BY_NAME['operating_mode'])
+            raw = self._read(servo, 'operating_mode')
             servo.mode = model.MODE_NAMES.get(raw, servo.mode)
         except BusError:
             pass
 
-    def reboot(self, names: Sequence[str]) -> Result:
-        """Reboot, then configuration, mode and torque state restored."""
+    def reboot(self, names: Sequence[str], wait: Optional[Callable[[List[Task]], None]] = None
+               ) -> Result:
+        """
+        Reboot, then configuration and mode restored, holding where it is, torque as it was.
+
+        The reboots run as tasks the cycle steps through (the others are read and published
+        meanwhile); wait(tasks) blocks until they ended. Without wait (nobody else runs the
+        cycle), they run here to their end.
+        """
         with self.lock:
             servos, reason = self._servos_named(names)
             if servos is None:
                 return Result(False, reason)
-            try:
-                for servo in servos:
-                    self._reboot_and_restore(servo)
-            except BusError as exc:
-                return Result(False, f'reboot failed: {exc}')
-            return Result(True, f'rebooted and restored {", ".join(s.name for s in servos)}')
+            # A joint named twice is rebooted once.
+            servos = list({servo.name: servo for servo in servos}.values())
+            tasks = [self._start_task(servo, 'reboot', self._reboot(servo)) for servo in servos]
+            if wait is None:
+                for task in tasks:
+                    if not task.done:
+                        try:
+                            task.run_to_end()
+                        except Exception:  # noqa: B902 - reported below from task.error
+                            pass
+                        self.tasks.cancel_all('done', [task.joint])
+                self._refresh_ids()
+        if wait is not None:
+            wait(tasks)
+        with self.lock:
+            failed = [f'{t.joint}: {t.error}' for t in tasks if t.error is not None]
+            for task in tasks:
+                if task.error is not None:
+                    self._task_retry_after_reboot(task)
+            self._need_full = True
+        if failed:
+            return Result(False, 'reboot failed: ' + '; '.join(failed))
+        return Result(True, f'rebooted and restored {", ".join(s.name for s in servos)}')
 
-    def _reboot_and_restore(self, servo: Servo) -> None:
-        """REBOOT one servo, wait for it, give it its setup back holding where it is."""
-        assert self.bus is not None
-        self._pending_drop(servo)
-        last = self._last_position(servo)
-        try:
-            last = self.bus.read_item(servo.servo_id, ct.BY_NAME['present_position'])
-        except PortError:
-            raise
-        except BusError:
-            pass   # a servo in trouble may not answer reads: the last good state will do
-        self.bus.reboot(servo.servo_id)
-        self._wait_for_boot(servo)
-        self._restore(servo, hold_last_goal=False, last_position=last)
-        self._need_full = True
-
-    def _wait_for_boot(self, servo: Servo, timeout_s: float = 3.0) -> None:
-        assert self.bus is not None
-        deadline = self._clock() + timeout_s
-        while True:
-            try:
-                self.bus.ping(servo.servo_id)
-                return
-            except CommTimeout:
-                if self._clock() > deadline:
-                    raise
-                time.sleep(0.02)
+    def _task_retry_after_reboot(self, task: Task) -> None:
+        # A servo whose reboot failed part-way may be unconfigured: restore it in the background.
+        servo = self.servos[task.joint]
+        if isinstance(task.error, PortError):
+            self._lose_port(task.error)
+            return
+        if servo.name not in self.tasks and not self.port_lost:
+            self._start_task(servo, 'restore', self._restore(servo, servo.last_joint_pulses()),
+                             self._clock() + RETRY_BACKOFF_S)
 
     def read_register(self, name: str, register: str) -> Tuple[Optional[int], str]:
         """Read one register by snake_case name or decimal address: (value, message)."""
@@ -952,7 +1284,10 @@ class Manager:
             if item is None:
                 return None, reason
             try:
-                value = self._open_bus().read_item(servos[0].servo_id, item)
+                value = self._read(servos[0], item.name)
+            except PortError as exc:
+                self._lose_port(exc)
+                return None, str(exc)
             except BusError as exc:
                 return None, str(exc)
             return value, f'{name}.{item.name} (address {item.address}) = {value}'
@@ -967,31 +1302,46 @@ class Manager:
             item, reason = _register(register)
             if item is None:
                 return Result(False, reason)
-            if item.access != 'RW':
-                return Result(False, f'{item.name} is read-only')
-            if item.name in model.DRIVER_OWNED:
-                return Result(False, f'{item.name} is managed by the driver: use the '
-                              'set_torque / set_operating_mode / command interfaces')
             try:
+                model.writable_register(item.name, runtime=True)
                 model.check_range(item, value)
             except ValueError as exc:
                 return Result(False, str(exc))
-            try:
-                if item.area == 'eeprom':
-                    torque = self._open_bus().read_item(servo.servo_id,
-                                                        ct.BY_NAME['torque_enable'])
-                    if torque:
+
+            def action() -> Result:
+                try:
+                    context = dict(servo.limits)
+                    context['homing_offset'] = servo.homing_offset
+                    for other in model.related_registers(item.name):
+                        if other not in context:
+                            context[other] = self._read(servo, other)
+                    model.check_register_set(context, item.name, value, servo.mode)
+                    if item.area == 'eeprom' and self._read(servo, 'torque_enable'):
                         return Result(False, f'{item.name} is in EEPROM, which the servo locks '
                                       'while torque is on: call set_torque with enable=false '
                                       'first')
-                self._open_bus().write_item(servo.servo_id, item, value)
-            except StatusError as exc:
-                return Result(False, str(exc))
-            except BusError as exc:
-                return Result(False, str(exc))
-            if item.name in servo.limits:
-                servo.limits[item.name] = value
-            return Result(True, f'{name}.{item.name} (address {item.address}) = {value}')
+                    self._write(servo, item.name, value)
+                except ValueError as exc:
+                    return Result(False, str(exc))
+                except BusError as exc:
+                    if isinstance(exc, PortError):
+                        raise
+                    return Result(False, str(exc))
+                if item.name in servo.limits:
+                    servo.limits[item.name] = value
+                return Result(True, f'{name}.{item.name} (address {item.address}) = {value}')
+            return self._request('write', action)
+
+
+_MODE_KIND = {'velocity': 'velocity', 'current': 'current', 'pwm': 'pwm',
+              'position': 'position', 'extended_position': 'position',
+              'current_based_position': 'position'}
+
+
+def _run(steps: Steps) -> None:
+    """Run an activity's steps to the end, at once (a synchronous caller)."""
+    for _ in steps:
+        pass
 
 
 def _register(key: str) -> Tuple[Optional[ct.Item], str]:

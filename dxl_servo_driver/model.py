@@ -8,7 +8,7 @@ Every conversion comes as a pair (raw -> SI, SI -> raw) so the two can never dri
 from dataclasses import dataclass
 import math
 import struct
-from typing import Callable, Optional
+from typing import Callable, Mapping, Optional
 
 from dxl_servo_driver import control_table as ct
 
@@ -74,6 +74,20 @@ def voltage_from_v(volts: float) -> int:
     return int(round(volts / V_PER_VOLTAGE_RAW))
 
 
+def reinit_position(present_raw: int, homing_offset: int) -> int:
+    """
+    Return Present Position after the servo re-initialises it (torque on, mode change, CLEAR).
+
+    The seed: it becomes the position within one turn (0..4095) plus the Homing Offset.
+    """
+    return (present_raw - homing_offset) % PULSES_PER_REV + homing_offset
+
+
+def kept_turns(before_raw: int, after_raw: int) -> int:
+    """Return the whole turns (in pulses) a re-initialisation took from before_raw."""
+    return int(round((before_raw - after_raw) / PULSES_PER_REV)) * PULSES_PER_REV
+
+
 @dataclass(frozen=True)
 class CommandKind:
     """One kind of goal a joint accepts: its register, SI unit and conversions."""
@@ -126,17 +140,72 @@ DRIVER_OWNED = frozenset(
     | {f'indirect_data_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)})
 
 
-def writable_register(name: str) -> ct.Item:
-    """Return the item a configuration may write, or raise ValueError saying why not."""
+# Registers a configuration or write_register may never set, and why.
+REFUSED_REGISTERS: dict[str, str] = {
+    'protocol_version': 'the driver speaks Protocol 2.0 only: 1 would switch the servo to '
+                        'Protocol 1.0, after which it no longer answers the driver',
+}
+
+
+def writable_register(name: str, runtime: bool = False) -> ct.Item:
+    """Return the item a configuration (or write_register) may write, or raise ValueError."""
     try:
         item = ct.BY_NAME[name]
     except KeyError:
         raise ValueError(f'unknown register {name!r} (not in the control table)') from None
     if item.access != 'RW':
         raise ValueError(f'register {name!r} is read-only')
+    if name in REFUSED_REGISTERS:
+        raise ValueError(f'register {name!r} cannot be written: {REFUSED_REGISTERS[name]}')
     if name in DRIVER_OWNED:
+        if runtime:
+            raise ValueError(f'{name} is managed by the driver: use the set_torque / '
+                             'set_operating_mode / command interfaces')
         raise ValueError(f'register {name!r} is managed by the driver and cannot be configured')
     return item
+
+
+# value register -> the register that bounds it: the servo refuses a value beyond it (data
+# limit error), so the driver refuses it first, from a file or at run time alike.
+_BOUNDED_BY = {'profile_velocity': 'velocity_limit', 'profile_acceleration': 'acceleration_limit',
+               'goal_pwm': 'pwm_limit', 'goal_current': 'current_limit'}
+# (low, high) pairs that must stay ordered.
+_ORDERED = (('min_position_limit', 'max_position_limit'),
+            ('min_voltage_limit', 'max_voltage_limit'))
+
+
+def related_registers(name: str) -> tuple[str, ...]:
+    """Return the registers whose values check_register_set needs to judge a write of name."""
+    related: list[str] = []
+    if name in _BOUNDED_BY:
+        related.append(_BOUNDED_BY[name])
+    for low, high in _ORDERED:
+        if name == low:
+            related.append(high)
+        elif name == high:
+            related.append(low)
+    return tuple(related)
+
+
+def check_register_set(values: Mapping[str, int], name: str, value: int, mode: str) -> None:
+    """
+    Raise ValueError when setting name to value contradicts the servo's other registers.
+
+    values holds the current values of (at least) related_registers(name); mode is the joint's
+    operating mode. The one rule book for parameter files and write_register.
+    """
+    bound = _BOUNDED_BY.get(name)
+    if bound is not None and abs(value) > values[bound]:
+        raise ValueError(f'{name} {value} exceeds {bound} ({values[bound]})')
+    for low, high in _ORDERED:
+        if name == low and value > values[high]:
+            raise ValueError(f'{low} {value} is above {high} ({values[high]})')
+        if name == high and value < values[low]:
+            raise ValueError(f'{high} {value} is below {low} ({values[low]})')
+    if (name == 'homing_offset' and mode == 'position'
+            and abs(value) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT):
+        raise ValueError('position mode ignores a homing offset beyond +-1024 (the manual); '
+                         'use extended_position for larger offsets')
 
 
 def check_range(item: ct.Item, value: int) -> None:
@@ -160,12 +229,14 @@ class StateBlock:
     """
     The state of one servo, packed through indirect addresses.
 
-    The registers below are scattered over the table (64, 68, 70, 122..146); mapping them to
+    The registers below are scattered over the table (64, 68, 70, 120..146); mapping them to
     consecutive indirect data bytes lets one sync read fetch all of them from every servo.
-    The block has two parts. The motion part (position, velocity, current: the same 10 bytes any
-    control loop reads) is read every cycle; the health part after it (a canary, pwm, voltage,
-    temperature, moving, errors, torque) only when diagnostics or servo_states need it, by
-    reading the whole block in that cycle's one sync read instead.
+    The block has three parts. The motion part (position, velocity, current: the same 10 bytes
+    any control loop reads) is read every cycle. The Realtime Tick follows it: the cycle reads it
+    too (the tagged read) while the bus is suspicious, to date every sample (TickClock). The
+    health part after it (a canary, pwm, voltage, temperature, moving, errors, torque) comes
+    only when diagnostics or servo_states need it, by reading the whole block in that cycle's one
+    sync read instead.
 
     The canary maps status_return_level, which the driver never sets to 0: after a reboot or a
     power cut the indirect addresses return to their defaults and the whole block reads 0. A
@@ -177,6 +248,8 @@ class StateBlock:
         ('present_position', 'i'),
         ('present_velocity', 'i'),
         ('present_current', 'h'),
+        # the tag
+        ('realtime_tick', 'H'),
         # health part
         ('status_return_level', 'B'),
         ('present_pwm', 'h'),
@@ -188,6 +261,7 @@ class StateBlock:
         ('torque_enable', 'B'),
     )
     MOTION_FIELDS = 3
+    TAGGED_FIELDS = 4
     FIRST_INDIRECT = 1
 
     def __init__(self) -> None:
@@ -197,6 +271,9 @@ class StateBlock:
         self.motion_struct = struct.Struct(
             '<' + ''.join(code for _, code in self.FIELDS[:self.MOTION_FIELDS]))
         self.motion_size: int = self.motion_struct.size
+        self.tagged_struct = struct.Struct(
+            '<' + ''.join(code for _, code in self.FIELDS[:self.TAGGED_FIELDS]))
+        self.tagged_size: int = self.tagged_struct.size
         fields = []
         offset = 0
         for name, _ in self.FIELDS:
@@ -208,6 +285,7 @@ class StateBlock:
         self.index: dict[str, int] = {name: i for i, name in enumerate(self.names)}
         self.read_address: int = ct.indirect_data_address(self.FIRST_INDIRECT)
         self.canary_index: int = self.index['status_return_level']
+        self.tick_index: int = self.index['realtime_tick']
 
     def indirect_map(self) -> list[int]:
         """Return the target address of each indirect byte, in order (one per block byte)."""
@@ -233,12 +311,87 @@ class StateBlock:
         """Return the raw values of the motion part (the first MOTION_FIELDS fields)."""
         return self.motion_struct.unpack_from(data, offset)
 
+    def decode_tagged(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
+        """Return the raw values of the motion part and the tick (TAGGED_FIELDS fields)."""
+        return self.tagged_struct.unpack_from(data, offset)
+
+    def decoder(self, length: int) -> 'Callable[[bytes], tuple[int, ...]]':
+        """Return the decoder of a read of length bytes (motion, tagged or whole)."""
+        if length == self.size:
+            return self.decode
+        if length == self.tagged_size:
+            return self.decode_tagged
+        if length == self.motion_size:
+            return self.decode_motion
+        raise ValueError(f'no state block part is {length} bytes long')
+
     def restarted(self, values: tuple[int, ...]) -> bool:
         """Return True when the values show the indirect mapping was lost (servo restarted)."""
         return values[self.canary_index] == 0
 
 
 STATE_BLOCK = StateBlock()
+
+TICK_PERIOD_MS = 32768   # Realtime Tick counts milliseconds and wraps after 32767
+
+
+def _wrap_ms(value: float) -> float:
+    """Return value folded into [-TICK_PERIOD_MS / 2, TICK_PERIOD_MS / 2)."""
+    half = TICK_PERIOD_MS / 2
+    return (value + half) % TICK_PERIOD_MS - half
+
+
+class TickClock:
+    """
+    Date a servo's samples by its Realtime Tick and refuse those older than their request.
+
+    A status packet carries no sequence number, so a late reply of an earlier identical request
+    looks like the answer to this one. The servo's tick does tell when the sample was taken.
+    Tick and host clock differ by an unknown offset c = tick - t_host (ms). A reply to a request
+    sent at s and received at r was sampled at some t in [s, r], so tick - r <= c: the largest
+    (tick - r) seen is a lower bound of c (a late reply only lowers tick - r, so it can never
+    raise the bound). A sample whose tick is below s + bound by more than tolerance_ms was taken
+    before its request went out: it answers an earlier request. The bound is relaxed by
+    drift_ppm between samples, for the two clocks' crystals.
+    """
+
+    def __init__(self, tolerance_ms: float = 2.0, drift_ppm: float = 300.0) -> None:
+        self.tolerance_ms = tolerance_ms
+        self.drift = drift_ppm * 1e-6
+        self._bound_ms: Optional[float] = None
+        self._bound_at_ms = 0.0
+        self.refused = 0
+
+    def reset(self) -> None:
+        """Forget the offset (the servo restarted: its tick started again from 0)."""
+        self._bound_ms = None
+
+    @property
+    def synced(self) -> bool:
+        """Return True once a sample has set the offset."""
+        return self._bound_ms is not None
+
+    def check(self, tick: int, sent_s: float, received_s: float) -> bool:
+        """Return False when the sample was taken before sent_s; learn from it otherwise."""
+        sent_ms = sent_s * 1000.0
+        received_ms = received_s * 1000.0
+        bound = self._bound_ms
+        if bound is None:
+            self._bound_ms = _wrap_ms(tick - received_ms)
+            self._bound_at_ms = received_ms
+            return True
+        bound -= self.drift * max(0.0, received_ms - self._bound_at_ms)
+        age_ms = _wrap_ms(bound - (tick - sent_ms))
+        if age_ms > self.tolerance_ms:
+            self.refused += 1
+            return False
+        rise = _wrap_ms((tick - received_ms) - bound)
+        if rise > 0.0:
+            bound += rise
+        self._bound_ms = _wrap_ms(bound)
+        self._bound_at_ms = received_ms
+        return True
+
 
 # Protocol 2.0 framing sizes, for bus timing.
 STATUS_OVERHEAD_BYTES = 11       # header 4, id, length 2, instruction, error, crc 2

@@ -148,12 +148,86 @@ class ParseEvent:
     raw: bytes
 
 
+@dataclass(frozen=True)
+class Frame:
+    """
+    One whole packet found in a buffer, not yet decoded.
+
+    start and end are its offsets in the buffer scanned. The body (instruction and parameters)
+    is unstuffed only when asked, so a frame that is skipped costs no copy.
+    """
+
+    start: int
+    end: int
+    servo_id: int
+    instruction: int
+    crc_ok: bool
+    raw: bytes
+
+    def packet(self) -> Packet:
+        """Decode the frame (the error byte is split off for a status packet)."""
+        return _packet_from_body(self.servo_id, unstuff(self.raw[7:-2]) if self.crc_ok
+                                 else self.raw[7:-2])
+
+
 def _packet_from_body(servo_id: int, body: bytes) -> Packet:
     instruction = body[0]
     params = body[1:]
     if instruction == Instruction.STATUS and params:
         return Packet(servo_id, instruction, bytes(params[1:]), params[0])
     return Packet(servo_id, instruction, bytes(params))
+
+
+def _partial_header_start(buffer: bytes | bytearray, pos: int) -> int:
+    # A trailing FF / FF FF / FF FF FD may be the start of a header still arriving.
+    end = len(buffer)
+    for keep in (3, 2, 1):
+        if end - keep >= pos and buffer[end - keep:end] == HEADER[:keep]:
+            return end - keep
+    return end
+
+
+def scan_frames(buffer: bytes | bytearray, pos: int = 0,
+                max_length: int = MAX_PACKET_LENGTH, final: bool = False,
+                resync: bool = True) -> tuple[list[Frame], int]:
+    """
+    Return the whole packets in buffer from pos on, and where unconsumed bytes begin.
+
+    This is the one framing routine of the package: the driver's bus and the simulator's
+    receiver both use it. Bytes before a header are noise and skipped. A length field below 3
+    or above max_length cannot be a packet of ours: the header is taken as noise and the scan
+    goes on at the next byte. A packet whose CRC fails is reported (crc_ok False); with resync
+    the scan then looks for a header inside it (noise may have forged a header whose length
+    swallowed a real packet), without it the whole claimed length is skipped (what a servo's
+    receiver does). The returned offset is where an incomplete packet (or a partial header)
+    starts, or len(buffer); with final (no more bytes will come), an incomplete packet is taken
+    as noise and the scan continues past its header.
+    """
+    frames: list[Frame] = []
+    end = len(buffer)
+    while True:
+        start = buffer.find(HEADER, pos)
+        if start < 0:
+            return frames, (end if final else _partial_header_start(buffer, pos))
+        if start + 7 > end:
+            if final:
+                pos = start + 1
+                continue
+            return frames, start
+        length = buffer[start + 5] | (buffer[start + 6] << 8)
+        if length < 3 or length > max_length:
+            pos = start + 1
+            continue
+        stop = start + 7 + length
+        if stop > end:
+            if final:
+                pos = start + 1
+                continue
+            return frames, start
+        raw = bytes(buffer[start:stop])
+        crc_ok = crc16(raw[:-2]) == (raw[-2] | (raw[-1] << 8))
+        frames.append(Frame(start, stop, raw[4], raw[7], crc_ok, raw))
+        pos = stop if crc_ok or not resync else start + 1
 
 
 def decode_packet(data: bytes) -> Packet:
@@ -171,12 +245,12 @@ def decode_packet(data: bytes) -> Packet:
 
 class StreamParser:
     """
-    Incremental Protocol 2.0 parser.
+    Incremental Protocol 2.0 parser (the simulated servos' receiver).
 
-    feed() takes the bytes as they arrive and returns the whole packets found. Garbage before a
-    header is skipped; a length field below 3 or above MAX_PACKET_LENGTH is taken as noise (the
-    parser resyncs on the next header); a packet whose CRC fails is reported with crc_ok False
-    (its id and raw bytes as received) and skipped whole. A partial packet whose next byte comes
+    feed() takes the bytes as they arrive and returns the whole packets found, framed by
+    scan_frames() without resync: garbage before a header is skipped, a length field below 3 or
+    above MAX_PACKET_LENGTH is noise, a packet whose CRC fails is reported with crc_ok False (its
+    id and raw bytes as received) and skipped whole. A partial packet whose next byte comes
     later than inter_byte_timeout_s is discarded, as the servo's receiver does.
     """
 
@@ -204,35 +278,8 @@ class StreamParser:
         if chunk:
             buffer += chunk
             self._last_byte_s = now_s
-        events: list[ParseEvent] = []
-        while buffer:
-            start = buffer.find(HEADER)
-            if start < 0:
-                self._keep_header_prefix()
-                break
-            if start:
-                del buffer[:start]
-            if len(buffer) < 7:
-                break
-            length = buffer[5] | (buffer[6] << 8)
-            if length < 3 or length > MAX_PACKET_LENGTH:
-                del buffer[:len(HEADER)]
-                continue
-            total = 7 + length
-            if len(buffer) < total:
-                break
-            raw = bytes(buffer[:total])
-            del buffer[:total]
-            crc_ok = crc16(raw[:-2]) == (raw[-2] | (raw[-1] << 8))
-            body = unstuff(raw[7:-2]) if crc_ok else raw[7:-2]
-            events.append(ParseEvent(_packet_from_body(raw[4], body), crc_ok, raw))
-        return events
-
-    def _keep_header_prefix(self) -> None:
-        # Keep a trailing FF / FF FF / FF FF FD: the rest of a header may follow.
-        buffer = self._buffer
-        for keep in (3, 2, 1):
-            if buffer.endswith(HEADER[:keep]):
-                del buffer[:-keep]
-                return
-        buffer.clear()
+        if not buffer:
+            return []
+        frames, rest = scan_frames(buffer, resync=False)
+        del buffer[:rest]
+        return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]

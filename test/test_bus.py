@@ -33,35 +33,36 @@ def motion(sim: SimBus, servo_id: int) -> Tuple[int, ...]:
 
 def test_a_clean_block_is_read_and_decoded(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
-    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    result = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    assert result.clean
     for servo_id in IDS:
-        assert BLOCK.decode_motion(results[servo_id]) == motion(sim, servo_id)
-        assert bus.alerts[servo_id] is False
-    assert bus.timeouts == bus.corrupt == 0
+        assert BLOCK.decode_motion(result.data[servo_id]) == motion(sim, servo_id)
+        assert result.alerts[servo_id] is False
+    assert bus.counters.timeouts == bus.counters.corrupt == 0
 
 
 def test_an_alert_bit_is_no_error_and_is_reported(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
     sim.inject_error(2, 'encoder')
-    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
-    assert all(isinstance(results[i], bytes) for i in IDS)
-    assert bus.alerts == {1: False, 2: True, 3: False}
-    assert BLOCK.decode_motion(results[2]) == motion(sim, 2)
+    result = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    assert all(isinstance(result.data[i], bytes) for i in IDS)
+    assert result.alerts == {1: False, 2: True, 3: False}
+    assert BLOCK.decode_motion(result.data[2]) == motion(sim, 2)
 
 
 def test_a_corrupted_reply_is_refused_alone(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
     sim.set_corrupt(3, 1.0)
-    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS).data
     assert isinstance(results[3], CorruptReply)
     assert isinstance(results[1], bytes) and isinstance(results[2], bytes)
-    assert bus.corrupt == 1
+    assert bus.counters.corrupt == 1
 
 
 def test_a_silent_servo_times_out_alone(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
     sim.set_drop(1, 1.0)
-    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS).data
     assert isinstance(results[1], CommTimeout)
     assert isinstance(results[2], bytes) and isinstance(results[3], bytes)
 
@@ -78,17 +79,23 @@ def test_a_stuffed_reply_is_unstuffed(rig: Tuple[SimBus, Bus]) -> None:
         sim.feed(b'', BAUD)
         bus.ping(2)     # lets the simulated servo advance its physics
     assert sim.read_register(2, 'present_position') == target
-    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    results = bus.sync_read(BLOCK.read_address, BLOCK.motion_size, IDS).data
     assert BLOCK.decode_motion(results[2])[0] == target
     assert isinstance(results[1], bytes) and isinstance(results[3], bytes)
 
 
 def test_begin_and_end_hold_the_bus_in_between(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
-    bus.sync_read_begin(BLOCK.read_address, BLOCK.motion_size, IDS)
+    pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
     assert bus.lock._is_owned()   # noqa: SLF001 - RLock: held by this thread until the end
-    results = bus.sync_read_end()
+    result = bus.end_sync_read(pending)
     assert not bus.lock._is_owned()
-    assert len(results) == 3
+    assert len(result.data) == 3
     with pytest.raises(RuntimeError):
-        bus.sync_read_end()
+        bus.end_sync_read(pending)
+    # An abandoned read releases the bus once, however often it is abandoned.
+    pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
+    bus.abort(pending)
+    bus.abort(pending)
+    assert not bus.lock._is_owned()
+    assert bus.dirty   # its replies are in flight: the next requests are careful

@@ -7,7 +7,7 @@ driver writes is parsed back into Protocol 2.0 packets.
 
 import math
 import time
-from typing import Any, Dict, List, Tuple
+from typing import Any, Callable, Dict, List, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
@@ -118,6 +118,28 @@ def active(rig: Rig) -> Tuple[Rig, Manager]:
     manager.configure()
     manager.activate()
     return rig, manager
+
+
+def run_cycles(manager: Manager, done: Callable[[], bool], timeout_s: float = 5.0,
+               step_s: float = 0.0) -> List[Dict[str, bool]]:
+    """
+    Run bus cycles (read, write, recovery steps) until done(); return who was fresh each cycle.
+
+    With step_s 0 a cycle leaves recovery no time: one step per cycle, the tightest budget.
+    """
+    fresh = []
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, 'the cycles did not get there in time'
+        manager.cycle_read(retry_until=time.monotonic() + 0.01)
+        manager.cycle_write(tasks_until=time.monotonic() + step_s)
+        fresh.append({servo.name: servo.fresh for servo in manager.order})
+        time.sleep(0.001)
+    return fresh
+
+
+def no_tasks(manager: Manager) -> Callable[[], bool]:
+    return lambda: not manager.tasks.tasks()
 
 
 def test_configure_applies_and_verifies_the_configuration(active: Tuple[Rig, Manager]) -> None:
@@ -337,7 +359,7 @@ def test_failed_reads_leave_the_joint_out_and_it_comes_back(
     rig.sim.set_corrupt(3, 1.0)
     manager.read_states()
     assert [s.fresh for s in manager.order] == [True, True, False]
-    assert manager.bus.corrupt >= 1
+    assert manager.bus.counters.corrupt >= 1
     rig.sim.set_corrupt(3, 0.0)
     manager.read_states()
     assert all(s.fresh for s in manager.order)
@@ -347,15 +369,23 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     assert manager.command_now('position', ['arm'], [0.3]).success
-    goal = rig.reg(1, 'goal_position')
     rig.sim.powercycle(1)
     assert rig.reg(1, 'torque_enable') == 0 and rig.reg(1, 'profile_velocity') == 0
     rig.wait_booted(1)
-    manager.read_states()                 # sees the lost indirect map: restores
+    manager.read_states()                 # sees the lost indirect map: starts restoring it
     assert manager.servos['arm'].restarts == 1
+    assert not manager.servos['arm'].fresh
+    # The restore goes one transaction per cycle: the other servos are read every cycle.
+    rig.tap.packets.clear()
+    fresh = run_cycles(manager, no_tasks(manager))
+    assert len(fresh) > 10
+    assert all(cycle['wheel'] and cycle['grip'] for cycle in fresh)
+    assert not any(cycle['arm'] for cycle in fresh[:-1])
     assert rig.reg(1, 'profile_velocity') == 200
     assert rig.reg(1, 'torque_enable') == 1
-    assert rig.reg(1, 'goal_position') == goal          # holds its last goal
+    # It holds where it is: the goal it had before its restart is not replayed.
+    assert abs(rig.reg(1, 'goal_position') - rig.reg(1, 'present_position')) <= 2
+    assert abs(rig.reg(1, 'goal_position') - model.position_from_rad(0.3)) > 50
     manager.read_states()
     assert manager.servos['arm'].fresh
 
@@ -444,17 +474,24 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     while abs(rig.reg(1, 'present_position') - target) > 10 and time.monotonic() < deadline:
         time.sleep(0.02)
     manager.read_states(full=True)
-    before = manager.servos['arm'].state[0]
-    assert abs(before - target) <= 10
+    arm = manager.servos['arm']
+    before = arm.last_joint_pulses()
+    assert before is not None and abs(before - target) <= 10
     rig.sim.powercycle(1)
     rig.wait_booted(1)
     assert abs(rig.reg(1, 'present_position') - before) > 4096   # the turns are gone
-    manager.read_states()                                        # restart seen, restored
-    after = rig.reg(1, 'present_position')
-    assert abs(after - before) <= 64     # the horn coasted a little while unpowered
-    assert rig.reg(1, 'homing_offset') % 4096 == 0 and rig.reg(1, 'homing_offset') != 0
+    manager.read_states()                                        # restart seen
+    run_cycles(manager, no_tasks(manager), step_s=0.01)
+    manager.read_states()
+    after = arm.last_joint_pulses()
+    assert after is not None and abs(after - before) <= 64   # the horn coasted a little
+    assert arm.turn_offset == 3 * 4096
+    assert rig.reg(1, 'homing_offset') == 0                # kept by the driver, no EEPROM
     assert rig.reg(1, 'torque_enable') == 1
-    assert any('continuous' in line for line in rig.logs)
+    # A goal in the joint's frame lands where it says.
+    goal = model.position_to_rad(target + 100)
+    assert manager.command_now('position', ['arm'], [goal]).success
+    assert rig.reg(1, 'goal_position') + arm.turn_offset == target + 100
 
 
 def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None:
@@ -471,6 +508,8 @@ def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None
     manager.read_states(full=True)
     manager.recover_hardware_errors()
     assert manager.servos['grip'].recoveries == 1
+    fresh = run_cycles(manager, no_tasks(manager))
+    assert all(cycle['arm'] and cycle['wheel'] for cycle in fresh)   # never stalled
     assert rig.reg(3, 'hardware_error_status') == 0
     assert rig.reg(3, 'torque_enable') == 1
     assert rig.reg(3, 'current_limit') == 500
@@ -486,6 +525,7 @@ def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None
     manager.read_states(full=True)
     manager.recover_hardware_errors()
     assert manager.servos['grip'].recoveries == 2
+    run_cycles(manager, no_tasks(manager))
     assert sum('rebooting it to recover' in line for line in rig.logs) == 2
 
 
@@ -502,11 +542,14 @@ def test_port_loss_then_reconnect(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.reconnect_interval_s = 0.0
     assert manager.cycle_read()
+    assert manager.command('velocity', ['wheel'], [1.0]).success   # queued, not yet written
     rig.tap.port.unplug_port()
     assert not manager.cycle_read()
     assert manager.port_lost and 'unplugged' in manager.port_error
     assert not any(s.fresh for s in manager.order)
-    assert not manager.command('position', ['arm'], [0.1]).success or True
+    # While the port is lost, goals are refused (never queued to be replayed later).
+    refused = manager.command('position', ['arm'], [0.1])
+    assert not refused.success and 'port is lost' in refused.message
     manager.cycle_write()                     # nothing to do, nothing raised
     assert not manager.cycle_read()           # still gone
     # The adapter comes back, and the servos lost power with it.
@@ -515,12 +558,35 @@ def test_port_loss_then_reconnect(active: Tuple[Rig, Manager]) -> None:
     rig.tap.port.plug_port()
     for servo_id in (1, 2, 3):
         rig.wait_booted(servo_id)
-    assert manager.cycle_read()
+    rig.tap.packets.clear()
+    run_cycles(manager, lambda: all(s.fresh for s in manager.order), step_s=0.01)
     assert not manager.port_lost
-    assert all(s.fresh for s in manager.order)
     assert all(rig.reg(i, 'torque_enable') == 1 for i in (1, 2, 3))
     assert rig.reg(1, 'profile_velocity') == 200
+    # Brought back to hold: the velocity queued before the loss never reached the wire.
+    assert rig.reg(2, 'goal_velocity') == 0
+    assert abs(rig.reg(1, 'goal_position') - rig.reg(1, 'present_position')) <= 2
     assert any('port back' in line for line in rig.logs)
+
+
+def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
+        active: Tuple[Rig, Manager]) -> None:
+    rig, manager = active
+    manager.reconnect_interval_s = 0.0
+    rig.tap.port.unplug_port()
+    assert not manager.cycle_read()
+    rig.sim.unplug(3)                         # it does not come back with the adapter
+    rig.tap.port.plug_port()
+    fresh = run_cycles(manager, lambda: manager.servos['arm'].fresh
+                       and manager.servos['wheel'].fresh, step_s=0.01)
+    assert len(fresh) < 50
+    stop = time.monotonic() + 0.5
+    fresh = run_cycles(manager, lambda: time.monotonic() > stop)
+    assert all(cycle['arm'] and cycle['wheel'] and not cycle['grip'] for cycle in fresh)
+    assert 'not answering' in manager.servos['grip'].status
+    rig.sim.plug(3)
+    rig.wait_booted(3)
+    run_cycles(manager, lambda: manager.servos['grip'].fresh, timeout_s=5.0, step_s=0.01)
 
 
 def test_a_restart_is_caught_by_a_motion_only_read(active: Tuple[Rig, Manager]) -> None:
@@ -535,6 +601,7 @@ def test_a_restart_is_caught_by_a_motion_only_read(active: Tuple[Rig, Manager]) 
     assert lengths[0] == model.STATE_BLOCK.motion_size
     assert manager.servos['wheel'].restarts == 1
     assert not manager.servos['wheel'].fresh        # nothing published from that read
+    run_cycles(manager, no_tasks(manager), step_s=0.01)
     assert rig.reg(2, 'operating_mode') == 1 and rig.reg(2, 'torque_enable') == 1
     manager.read_states()
     assert manager.servos['wheel'].fresh

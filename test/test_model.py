@@ -72,7 +72,7 @@ def test_state_block_decodes_signed_values() -> None:
     values = {'present_position': -5000, 'present_velocity': -7, 'present_current': -300,
               'present_pwm': -885, 'present_input_voltage': 121, 'present_temperature': 41,
               'moving': 1, 'moving_status': 0x33, 'hardware_error_status': 0x24,
-              'torque_enable': 1, 'status_return_level': 2}
+              'torque_enable': 1, 'status_return_level': 2, 'realtime_tick': 32767}
     for field in block.fields:
         item = ct.BY_NAME[field.name]
         raw[field.offset:field.offset + field.size] = values[field.name].to_bytes(

@@ -124,6 +124,9 @@ class Oracle:
                 low = self.limit(name, 'min_position_limit')
                 high = self.limit(name, 'max_position_limit')
             else:
+                # Turns kept by the driver across a restart are not in the servo's count.
+                assert self.h.node is not None
+                raw -= self.h.node.manager.servos[name].turn_offset
                 low, high = -EXTENDED_LIMIT_RAW, EXTENDED_LIMIT_RAW
             return min(max(raw, low), high)
         if kind == 'velocity':
@@ -304,8 +307,12 @@ class Fuzzer:
         register = KIND_REGISTER[kind]
         held = self.snapshot[(IDS[name], register)]
         if kind == 'position':
-            raw = 2000 if held != 2000 else 2100
-            return name, raw, (raw - 2048) * RAD_PER_PULSE
+            value = (2000 - 2048) * RAD_PER_PULSE
+            raw = self.oracle.raw_goal(name, kind, value)
+            if raw == held:
+                value = (2100 - 2048) * RAD_PER_PULSE
+                raw = self.oracle.raw_goal(name, kind, value)
+            return name, raw, value
         raw = 20 if held != 20 else -20
         unit = {'velocity': RAD_S_PER_RAW, 'current': A_PER_RAW, 'pwm': 1.0 / PWM_FULL_RAW}[kind]
         return name, raw, raw * unit

@@ -1,0 +1,134 @@
+"""
+Step-wise activities that must not stall the bus cycle: restoring a servo, rebooting it.
+
+An activity is a generator that does at most one bus transaction between two yields (or waits,
+yielding without one). The cycle runs a few steps of each in the time it has left, so a servo
+being restored never holds up the others for more than a cycle's budget; a synchronous caller
+(configure, a service in a timer-driven node) runs the same generator to its end at once.
+"""
+
+import threading
+import time
+from typing import Callable, Dict, Generator, Iterable, List, Optional
+
+Steps = Generator[None, None, None]
+
+
+class Task:
+    """One activity on one joint: its steps, its outcome, and an event for whoever waits."""
+
+    def __init__(self, joint: str, kind: str, steps: Steps,
+                 not_before_s: float = 0.0) -> None:
+        self.joint = joint
+        self.kind = kind
+        self._steps = steps
+        self.not_before_s = not_before_s   # do not start before this time (retry back-off)
+        self.finished = threading.Event()
+        self.error: Optional[BaseException] = None
+        self.cancelled = False
+
+    @property
+    def done(self) -> bool:
+        """Return True once the task ended (success, failure or cancelled)."""
+        return self.finished.is_set()
+
+    def step(self) -> bool:
+        """Run one step; return True when the task has ended. Exceptions end it and propagate."""
+        try:
+            next(self._steps)
+        except StopIteration:
+            self.finished.set()
+            return True
+        except BaseException as exc:
+            self.error = exc
+            self.finished.set()
+            raise
+        return False
+
+    def run_to_end(self) -> None:
+        """Run every remaining step now (a synchronous caller)."""
+        while not self.step():
+            pass
+
+    def cancel(self, reason: str) -> None:
+        """End the task without running its remaining steps."""
+        if self.done:
+            return
+        self.cancelled = True
+        self.error = RuntimeError(reason)
+        self._steps.close()
+        self.finished.set()
+
+
+class TaskRunner:
+    """
+    The tasks in progress, at most one per joint, stepped round-robin within a time budget.
+
+    on_error(task, exc) decides what a failed task means (retry later, give up); exceptions it
+    raises itself propagate to the cycle (a lost port).
+    """
+
+    def __init__(self, on_done: Callable[[Task], None],
+                 on_error: Callable[[Task, Exception], None],
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._tasks: Dict[str, Task] = {}
+        self._on_done = on_done
+        self._on_error = on_error
+        self._clock = clock
+        self._turn = 0
+
+    def __contains__(self, joint: str) -> bool:
+        """Return True when the joint has a task in progress."""
+        return joint in self._tasks
+
+    def get(self, joint: str) -> Optional[Task]:
+        """Return the joint's task in progress, or None."""
+        return self._tasks.get(joint)
+
+    def tasks(self) -> List[Task]:
+        """Return the tasks in progress."""
+        return list(self._tasks.values())
+
+    def add(self, task: Task) -> Task:
+        """Start a task; one already running for that joint is cancelled (superseded)."""
+        old = self._tasks.get(task.joint)
+        if old is not None:
+            old.cancel(f'superseded by {task.kind}')
+        self._tasks[task.joint] = task
+        return task
+
+    def cancel_all(self, reason: str, joints: Optional[Iterable[str]] = None) -> None:
+        """Cancel every task (or those of the given joints)."""
+        names = list(self._tasks) if joints is None else list(joints)
+        for name in names:
+            task = self._tasks.pop(name, None)
+            if task is not None:
+                task.cancel(reason)
+
+    def run(self, until_s: float) -> int:
+        """
+        Step the tasks round-robin until until_s; return the number of steps run.
+
+        At least one step runs when a task is ready, so recovery always progresses, even in a
+        loop with no time to spare.
+        """
+        steps = 0
+        while True:
+            ready = [t for t in self._tasks.values() if t.not_before_s <= self._clock()]
+            if not ready:
+                return steps
+            task = ready[self._turn % len(ready)]
+            self._turn += 1
+            try:
+                ended = task.step()
+            except Exception as exc:  # noqa: B902 - the owner decides what a failure means
+                self._tasks.pop(task.joint, None)
+                self._on_error(task, exc)
+                ended = False
+            else:
+                if ended:
+                    self._tasks.pop(task.joint, None)
+                    self._on_done(task)
+            steps += 1
+            if self._clock() >= until_s:
+                return steps
