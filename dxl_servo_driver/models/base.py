@@ -1,0 +1,160 @@
+"""
+The types of the model catalogue: datasheet physics and one model's control table.
+
+Pure data: nothing here talks to a bus.  `Item` is the seed table's own class
+(control_table.Item), so the seed's items and these tables compare field by field.
+"""
+
+from dataclasses import dataclass, field
+import math
+
+from dxl_servo_driver.control_table import Item
+
+__all__ = ['Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
+
+
+class ModelError(ValueError):
+    """A model number, name or firmware the catalogue does not support."""
+
+
+@dataclass(frozen=True)
+class VoltagePoint:
+    """One supply voltage of the datasheet: stall torque and current, no-load speed."""
+
+    voltage_v: float
+    stall_torque_nm: float
+    stall_current_a: float
+    no_load_speed_rpm: float
+
+    @property
+    def torque_constant_nm_per_a(self) -> float:
+        """Return stall torque over stall current (output shaft, gearbox included)."""
+        return self.stall_torque_nm / self.stall_current_a
+
+
+@dataclass(frozen=True)
+class Physics:
+    """Datasheet figures of one model: gear ratio and the published voltage points."""
+
+    gear_ratio: float
+    nominal_voltage_v: float
+    points: tuple[VoltagePoint, ...]
+    source: str
+
+    @property
+    def nominal(self) -> VoltagePoint:
+        """Return the point at the recommended voltage."""
+        for point in self.points:
+            if math.isclose(point.voltage_v, self.nominal_voltage_v):
+                return point
+        raise ModelError(f'no datasheet point at the nominal {self.nominal_voltage_v} V')
+
+    def at(self, voltage_v: float) -> VoltagePoint:
+        """
+        Return the figures at a supply voltage.
+
+        Linear between the published points; outside them the nearest point is returned
+        unchanged, since the datasheet says nothing about voltages it does not list.
+        """
+        points = self.points
+        if voltage_v <= points[0].voltage_v:
+            return points[0]
+        if voltage_v >= points[-1].voltage_v:
+            return points[-1]
+        for low, high in zip(points, points[1:]):
+            if low.voltage_v <= voltage_v <= high.voltage_v:
+                t = (voltage_v - low.voltage_v) / (high.voltage_v - low.voltage_v)
+                return VoltagePoint(
+                    voltage_v,
+                    low.stall_torque_nm + t * (high.stall_torque_nm - low.stall_torque_nm),
+                    low.stall_current_a + t * (high.stall_current_a - low.stall_current_a),
+                    low.no_load_speed_rpm
+                    + t * (high.no_load_speed_rpm - low.no_load_speed_rpm))
+        raise AssertionError('unreachable: the points are sorted by voltage')
+
+
+@dataclass(frozen=True)
+class Model:
+    """One supported model (and firmware range): control table, units, modes, physics."""
+
+    number: int
+    name: str
+    family: str
+    items: tuple[Item, ...]
+    modes: dict[str, int] = field(hash=False)
+    bauds: dict[int, int] = field(hash=False)
+    current_unit_a: float | None
+    load_unit_ratio: float | None
+    velocity_unit_rpm: float
+    pulses_per_rev: int
+    position_zero_raw: int
+    pwm_full_raw: int
+    voltage_unit_v: float
+    indirect: tuple[tuple[int, int], ...]
+    hardware_error_bits: dict[int, str] = field(hash=False)
+    physics: Physics
+    min_firmware: int = 0
+    fast_sync_read_firmware: int | None = None
+    _by_name: dict[str, Item] = field(
+        init=False, repr=False, compare=False, hash=False, default_factory=dict)
+    _by_address: dict[int, Item] = field(
+        init=False, repr=False, compare=False, hash=False, default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Frozen: the lookup maps are filled once, here, through object.__setattr__'s
+        # back door rather than rebuilt on every lookup.
+        object.__setattr__(self, '_by_name', {item.name: item for item in self.items})
+        object.__setattr__(self, '_by_address', {item.address: item for item in self.items})
+
+    @property
+    def label(self) -> str:
+        """Return 'NAME (model N)' plus the firmware range when the table depends on it."""
+        text = f'{self.name} (model {self.number}'
+        if self.min_firmware:
+            text += f', firmware {self.min_firmware}+'
+        return text + ')'
+
+    def item(self, name: str) -> Item:
+        """Return the item with this snake_case name."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise KeyError(f'{self.label} has no control-table item named {name!r}') from None
+
+    def has(self, name: str) -> bool:
+        """Return whether the table has an item with this name."""
+        return name in self._by_name
+
+    def by_address(self, address: int) -> Item:
+        """Return the item starting at this address."""
+        try:
+            return self._by_address[address]
+        except KeyError:
+            raise KeyError(
+                f'{self.label} has no control-table item starting at address {address!r}'
+            ) from None
+
+    def lookup(self, key: str | int) -> Item:
+        """Return the item with this name or start address."""
+        if isinstance(key, str):
+            return self.item(key)
+        return self.by_address(key)
+
+    @property
+    def table_end(self) -> int:
+        """Return one past the last byte of the table."""
+        return max(item.address + item.size for item in self.items)
+
+    @property
+    def stall_torque_nm(self) -> float:
+        """Return the stall torque at the nominal voltage."""
+        return self.physics.nominal.stall_torque_nm
+
+    @property
+    def torque_constant_nm_per_a(self) -> float:
+        """Return stall torque over stall current at the nominal voltage."""
+        return self.physics.nominal.torque_constant_nm_per_a
+
+    def decode_hardware_errors(self, status: int) -> list[str]:
+        """Return the names of the bits set in a Hardware Error Status value."""
+        return [name for bit, name in self.hardware_error_bits.items() if status & bit]

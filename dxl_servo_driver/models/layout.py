@@ -1,0 +1,93 @@
+"""
+Building control tables from a shared base: removals, additions and per-item overrides.
+
+Every family starts from the seed's layout (control_table.ITEMS) and states only how it
+differs, so the numbers the families share live in one place.
+"""
+
+from dataclasses import replace
+from typing import Any, Iterable, Mapping, TypeAlias
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.control_table import Item
+
+EEPROM_END = ct.EEPROM_END
+U8, U16 = 0xFF, 0xFFFF
+FIRST_RAM_ADDRESS = EEPROM_END  # indirect addresses may point anywhere in RAM only
+
+# A value an override may set on an Item field.
+Value: TypeAlias = int | str | bool | None
+Overrides: TypeAlias = Mapping[str, Mapping[str, Value]]
+
+
+def item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
+         maximum: int, *, signed: bool = False, limit: str | None = None, unit: str = '',
+         description: str = '') -> Item:
+    """Return an Item, its area (EEPROM below 64, RAM above) derived from the address."""
+    area = 'eeprom' if address < EEPROM_END else 'ram'
+    return Item(name, address, size, area, access, initial, minimum, maximum, signed, limit,
+                unit, description)
+
+
+def build(base: Iterable[Item], *, remove: Iterable[str] = (), add: Iterable[Item] = (),
+          override: Overrides | None = None) -> tuple[Item, ...]:
+    """
+    Return base without `remove`, plus `add`, with `override` applied, sorted by address.
+
+    Naming an item that is not there (or adding one twice) raises ValueError at import
+    time, so a typo in a family's differences cannot slip through as a silent no-op.
+    """
+    items = {existing.name: existing for existing in base}
+    for name in remove:
+        if name not in items:
+            raise ValueError(f'cannot remove {name!r}: not in the layout')
+        del items[name]
+    for new in add:
+        if new.name in items:
+            raise ValueError(f'cannot add {new.name!r}: already in the layout')
+        items[new.name] = new
+    for name, changes in (override or {}).items():
+        if name not in items:
+            raise ValueError(f'cannot override {name!r}: not in the layout')
+        # Any: the dataclass plugin types each field of replace(); the values were
+        # typed as Value when the overrides were written.
+        fields: dict[str, Any] = dict(changes)
+        items[name] = replace(items[name], **fields)
+    return tuple(sorted(items.values(), key=lambda each: each.address))
+
+
+def indirect_pairs(*banks: tuple[int, int, int]) -> tuple[tuple[int, int], ...]:
+    """
+    Return (address of Indirect Address n, address of Indirect Data n) for n = 1, 2, ...
+
+    Each bank is (first address entry, first data entry, count): addresses are 2 bytes
+    apart, data 1 byte apart, and numbering continues from one bank to the next.
+    """
+    pairs: list[tuple[int, int]] = []
+    for first_address, first_data, count in banks:
+        pairs.extend((first_address + 2 * n, first_data + n) for n in range(count))
+    return tuple(pairs)
+
+
+def indirect_items(pairs: tuple[tuple[int, int], ...], last_ram_address: int) -> list[Item]:
+    """
+    Return the indirect_address_N / indirect_data_N items for these pairs.
+
+    Each address entry powers on pointing at its own data byte (the e-manual's initial
+    values) and accepts any RAM address up to the table's last byte.
+    """
+    items: list[Item] = []
+    for number, (address, data) in enumerate(pairs, start=1):
+        items.append(item(
+            f'indirect_address_{number}', address, 2, 'RW', data, FIRST_RAM_ADDRESS,
+            last_ram_address,
+            description=f'Indirect Address {number} '
+                        f'(RAM address {FIRST_RAM_ADDRESS}..{last_ram_address})'))
+        items.append(item(f'indirect_data_{number}', data, 1, 'RW', 0, 0, U8,
+                          description=f'Indirect Data {number}'))
+    return items
+
+
+def is_indirect(name: str) -> bool:
+    """Return whether this is one of the indirect_address_N / indirect_data_N items."""
+    return name.startswith(('indirect_address_', 'indirect_data_'))

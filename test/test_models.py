@@ -1,0 +1,360 @@
+"""The model catalogue: SDK model files, the seed, internal consistency and look-ups."""
+
+from dataclasses import replace
+import importlib.util
+import math
+import pathlib
+import re
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.models import (
+    ALL_MODELS, FAMILIES, Model, model_for, model_named, ModelError, SEED_DIFFERENCES,
+    SUPPORTED, unsupported_reason)
+import pytest
+
+
+def _sdk_tables() -> pathlib.Path | None:
+    spec = importlib.util.find_spec('dynamixel_easy_sdk')
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    return pathlib.Path(list(spec.submodule_search_locations)[0]) / 'control_table'
+
+
+SDK = _sdk_tables()
+needs_sdk = pytest.mark.skipif(
+    SDK is None, reason='dynamixel_easy_sdk (dynamixel-sdk 4.1) is not installed')
+
+# SDK names that do not snake-case into ours.
+SDK_NAMES = {'Protocol Type': 'protocol_version', 'Secondary(Shadow) ID': 'secondary_id'}
+# Rows of the model files that alias an indirect entry instead of naming an item.
+SDK_ALIASES = {
+    'Indirect Address Write': 'indirect_address_', 'Indirect Address Read': 'indirect_address_',
+    'Indirect Data Write': 'indirect_data_', 'Indirect Data Read': 'indirect_data_',
+}
+# Items our tables have beyond the model files (all from the e-manual or the seed).
+EXTRAS = {'startup_configuration', 'backup_ready'}
+SEED_ONLY = {'acceleration_limit'}
+
+SIGNED = {'homing_offset', 'goal_pwm', 'goal_current', 'goal_velocity', 'goal_position',
+          'present_pwm', 'present_current', 'present_load', 'present_velocity',
+          'present_position', 'velocity_trajectory', 'position_trajectory'}
+LIMITS = {'goal_pwm': 'pwm_limit', 'goal_current': 'current_limit',
+          'goal_velocity': 'velocity_limit', 'profile_velocity': 'velocity_limit',
+          'goal_position': 'max_position_limit'}
+MODE_NAMES = {'current', 'velocity', 'position', 'extended_position', 'current_based_position',
+              'pwm'}
+ERROR_NAMES = {'input_voltage', 'overheating', 'motor_encoder', 'electrical_shock', 'overload'}
+
+
+def _label(model: Model) -> str:
+    return f'{model.number}-fw{model.min_firmware}'
+
+
+def _sdk_rows(path: pathlib.Path) -> list[tuple[int, int, str]]:
+    """Return (address, size, name) of a model file's [control table] section."""
+    lines = path.read_text(encoding='utf-8').splitlines()
+    start = lines.index('[control table]') + 2   # skip the 'Address Size Data Name' header
+    rows = []
+    for line in lines[start:]:
+        if line.strip():
+            address, size, name = line.split('\t')[:3]
+            rows.append((int(address), int(size), name.strip()))
+    return rows
+
+
+def _our_name(sdk_name: str) -> str:
+    return SDK_NAMES.get(sdk_name) or re.sub(r'[^0-9a-z]+', '_', sdk_name.lower()).strip('_')
+
+
+def _stem(model: Model) -> str:
+    return model.name.lower().replace('-', '_')
+
+
+def _sdk_file(model: Model) -> pathlib.Path:
+    """
+    Return the model file describing this variant.
+
+    The newest variant is the plain file; an older one is '<stem>_fwNN.model', NN being the
+    last firmware it covers (the convention of ROBOTIS's dynamixel_hardware_interface).
+    """
+    assert SDK is not None
+    variants = SUPPORTED[model.number]
+    index = variants.index(model)
+    if index == len(variants) - 1:
+        return SDK / f'{_stem(model)}.model'
+    return SDK / f'{_stem(model)}_fw{variants[index + 1].min_firmware - 1}.model'
+
+
+def _dynamixel_model() -> dict[int, str]:
+    assert SDK is not None
+    lines = (SDK / 'dynamixel.model').read_text(encoding='utf-8').splitlines()[1:]
+    return {int(number): name for number, name in (line.split() for line in lines if line)}
+
+
+def _squash(text: str) -> str:
+    return re.sub(r'[^0-9a-z]', '', text.lower())
+
+
+# --- the SDK's model files ---------------------------------------------------------------
+
+
+@needs_sdk
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_every_model_file_row_is_in_the_table(model: Model) -> None:
+    path = _sdk_file(model)
+    assert path.is_file(), f'{model.label}: no SDK model file {path.name}'
+    seen = set()
+    for address, size, sdk_name in _sdk_rows(path):
+        if sdk_name in SDK_ALIASES:
+            ours = model.by_address(address)
+            assert ours.name.startswith(SDK_ALIASES[sdk_name]), (sdk_name, ours)
+        else:
+            ours = model.item(_our_name(sdk_name))
+            assert ours.address == address, (sdk_name, ours)
+        assert ours.size == size, (sdk_name, ours)
+        seen.add(ours.name)
+    extras = {item.name for item in model.items} - seen
+    allowed = EXTRAS | (SEED_ONLY if model.number in (1020, 1030) else set())
+    unexplained = {name for name in extras
+                   if name not in allowed and not name.startswith('indirect_')}
+    assert not unexplained, f'{model.label}: items the model file lacks: {unexplained}'
+
+
+@needs_sdk
+def test_dynamixel_model_names_the_files_of_our_models() -> None:
+    assert SDK is not None
+    listed = _dynamixel_model()
+    for number, variants in SUPPORTED.items():
+        newest = variants[-1]
+        if number in listed:
+            assert listed[number] == f'{_stem(newest)}.model', newest.label
+        else:
+            # XW430-T200: the file ships, the number is only in the e-manual.
+            assert number == 1280 and (SDK / f'{_stem(newest)}.model').is_file()
+
+
+@needs_sdk
+def test_every_other_sdk_model_is_refused_by_name() -> None:
+    for number, file_name in _dynamixel_model().items():
+        if number in SUPPORTED:
+            continue
+        reason = unsupported_reason(number)
+        assert _squash(file_name.removesuffix('.model')) in _squash(reason), (number, reason)
+
+
+# --- the seed ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize('number', [1020, 1030])
+def test_xm430_tables_carry_the_seed_items_unchanged(number: int) -> None:
+    model = model_for(number)
+    for seed in ct.ITEMS:
+        ours = model.item(seed.name)
+        if seed.name == 'model_number':
+            # The seed is model 1030; only the number it reports differs for 1020.
+            assert ours.initial == number
+            assert replace(ours, initial=ct.MODEL_NUMBER) == seed
+        else:
+            assert ours == seed
+    added = {item.name for item in model.items} - {seed.name for seed in ct.ITEMS}
+    assert added == {'drive_mode', 'secondary_id', 'bus_watchdog', 'startup_configuration',
+                     'backup_ready'}
+    assert model.modes == ct.OPERATING_MODES
+    assert model.bauds == ct.BAUD_RATES
+    assert model.hardware_error_bits == ct.HARDWARE_ERROR_BITS
+
+
+def test_seed_datasheet_is_the_xm430_w350_one() -> None:
+    # Seed manual: 353.5:1; 3.8/4.1/4.8 N.m at 11.1/12/14.8 V, 2.1/2.3/2.7 A, 43/46/57 rpm.
+    physics = model_for(1020).physics
+    assert physics.gear_ratio == 353.5 and physics.nominal_voltage_v == 12.0
+    rows = [(p.voltage_v, p.stall_torque_nm, p.stall_current_a, p.no_load_speed_rpm)
+            for p in physics.points]
+    assert rows == [(11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)]
+    assert model_for(1020).torque_constant_nm_per_a == pytest.approx(4.1 / 2.3)
+    assert model_for(1030).physics.gear_ratio == 212.6
+
+
+def test_seed_differences_are_listed() -> None:
+    text = ' '.join(SEED_DIFFERENCES)
+    for name in ('Drive Mode', 'Secondary(Shadow) ID', 'Bus Watchdog', 'Acceleration Limit',
+                 'Startup Configuration', 'Backup Ready'):
+        assert name in text
+    assert all(sentence.endswith('.') for sentence in SEED_DIFFERENCES)
+
+
+# --- internal consistency -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
+    names = [item.name for item in model.items]
+    assert len(names) == len(set(names))
+    assert [item.address for item in model.items] == sorted(item.address for item in model.items)
+    for item, following in zip(model.items, model.items[1:]):
+        assert item.address + item.size <= following.address, (item.name, following.name)
+    for item in model.items:
+        assert re.fullmatch(r'[a-z][a-z0-9_]*', item.name), item.name
+        assert item.size in (1, 2, 4) and item.access in ('R', 'RW')
+        assert item.area == ('eeprom' if item.address < ct.EEPROM_END else 'ram'), item.name
+        assert item.minimum <= item.initial <= item.maximum, item.name
+        bits = 8 * item.size - (1 if item.signed else 0)
+        low, high = (-(1 << bits), (1 << bits) - 1) if item.signed else (0, (1 << bits) - 1)
+        assert low <= item.minimum and item.maximum <= high, item.name
+        assert item.signed == (item.name in SIGNED), item.name
+        assert model.by_address(item.address) is item
+        assert model.lookup(item.name) is item
+
+
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_limits_point_at_existing_registers(model: Model) -> None:
+    for item in model.items:
+        if item.limit is not None:
+            bound = model.item(item.limit)
+            # The static range is the widest the limit register allows.
+            assert bound.maximum <= item.maximum, item.name
+    for name, limit in LIMITS.items():
+        if model.has(name):
+            assert model.item(name).limit == limit
+    expected = 'acceleration_limit' if model.has('acceleration_limit') else None
+    assert model.item('profile_acceleration').limit == expected
+    velocity = model.item('goal_velocity')
+    assert velocity.minimum == -model.item('velocity_limit').maximum
+
+
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_modes_units_and_bauds_agree_with_the_table(model: Model) -> None:
+    assert set(model.modes) <= MODE_NAMES and {'velocity', 'position', 'pwm'} <= set(model.modes)
+    assert len(set(model.modes.values())) == len(model.modes)
+    mode = model.item('operating_mode')
+    assert all(mode.minimum <= value <= mode.maximum for value in model.modes.values())
+    assert mode.initial in model.modes.values()
+    assert (model.current_unit_a is not None) == model.has('present_current')
+    assert (model.load_unit_ratio is not None) == model.has('present_load')
+    assert model.has('present_current') != model.has('present_load')
+    assert ('current' in model.modes) == model.has('goal_current') == model.has('current_limit')
+    baud = model.item('baud_rate')
+    assert sorted(model.bauds) == list(range(baud.minimum, baud.maximum + 1))
+    speeds = [model.bauds[value] for value in sorted(model.bauds)]
+    assert speeds == sorted(set(speeds)) and baud.initial in model.bauds
+    assert all(bit & (bit - 1) == 0 and bit < 0x80 for bit in model.hardware_error_bits)
+    assert set(model.hardware_error_bits.values()) == ERROR_NAMES
+    assert model.item('model_number').initial == model.number
+    assert model.item('firmware_version').initial >= model.min_firmware
+    volts = model.item('present_input_voltage').initial
+    assert model.item('min_voltage_limit').initial <= volts
+    assert volts <= model.item('max_voltage_limit').initial
+
+
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_indirect_entries_match_the_items(model: Model) -> None:
+    addresses = [item for item in model.items if item.name.startswith('indirect_address_')]
+    data = [item for item in model.items if item.name.startswith('indirect_data_')]
+    assert len(model.indirect) == len(addresses) == len(data) > 0
+    for number, (address, datum) in enumerate(model.indirect, start=1):
+        entry = model.item(f'indirect_address_{number}')
+        target = model.item(f'indirect_data_{number}')
+        assert (entry.address, entry.size, entry.initial) == (address, 2, datum)
+        assert (target.address, target.size) == (datum, 1)
+        assert entry.minimum == ct.EEPROM_END and entry.maximum == model.table_end - 1
+
+
+@pytest.mark.parametrize('model', ALL_MODELS, ids=_label)
+def test_physics_is_usable(model: Model) -> None:
+    physics = model.physics
+    voltages = [point.voltage_v for point in physics.points]
+    assert voltages == sorted(set(voltages))
+    assert any(math.isclose(v, physics.nominal_voltage_v) for v in voltages)
+    assert physics.gear_ratio > 1 and physics.source
+    assert model.torque_constant_nm_per_a > 0 and model.stall_torque_nm > 0
+    for point in physics.points:
+        assert point.stall_current_a > 0 and point.no_load_speed_rpm > 0
+    # The velocity registers can express the no-load speed.
+    fastest = max(point.no_load_speed_rpm for point in physics.points)
+    assert model.item('velocity_limit').maximum * model.velocity_unit_rpm >= fastest
+    # The nominal supply sits inside the power-on voltage limits.
+    nominal = physics.nominal_voltage_v / model.voltage_unit_v
+    assert model.item('min_voltage_limit').initial <= nominal
+    assert nominal <= model.item('max_voltage_limit').initial
+
+
+def test_family_features() -> None:
+    assert not model_for(1060).has('goal_current') and model_for(1060).has('present_load')
+    assert set(model_for(1060).modes) == {'velocity', 'position', 'extended_position', 'pwm'}
+    assert model_for(1060).load_unit_ratio == 0.001
+    assert model_for(1120).item('external_port_data_3').address == 156
+    assert not model_for(1170).has('led') and model_for(1020).has('led')
+    assert model_for(1200).current_unit_a == 0.001 and max(model_for(1200).bauds) == 6
+    assert model_for(1200).bauds[6] == 4_000_000 and model_for(1060).bauds[7] == 4_500_000
+    assert model_for(1040).current_unit_a == pytest.approx(1.34e-3)
+    assert model_for(1090).fast_sync_read_firmware is None
+    assert model_for(1060).fast_sync_read_firmware == 45
+    assert model_for(1200).fast_sync_read_firmware == 46
+
+
+# --- look-ups ------------------------------------------------------------------------------
+
+
+def test_x330_indirect_block_depends_on_the_firmware() -> None:
+    old, new = SUPPORTED[1230]
+    assert (old.min_firmware, new.min_firmware) == (0, 53)
+    assert model_for(1230, 52) is old and model_for(1230, 0) is old
+    assert model_for(1230, 53) is new and model_for(1230) is new
+    assert old.indirect[0] == (168, 208) and len(old.indirect) == 20
+    assert new.indirect[0] == (168, 224) and len(new.indirect) == 28
+    assert old.table_end == 228 and new.table_end == 252
+
+
+def test_model_for_picks_the_only_table_whatever_the_firmware() -> None:
+    assert model_for(1020, 1) is model_for(1020, 99) is model_for(1020) is SUPPORTED[1020][0]
+    with pytest.raises(ModelError):
+        model_for(1020, -1)
+
+
+@pytest.mark.parametrize('number,names', [
+    (2000, ('H42-20-S300', 'PRO', 'PH42-020-S300-R')), (350, ('XL-320',)),
+    (35074, ('RH-P12-RN',)), (4000, ('YM070-210-M001',)), (30, ('MX-28',)),
+    (9999, ('9999',)),
+])
+def test_refused_models_are_named(number: int, names: tuple[str, ...]) -> None:
+    reason = unsupported_reason(number)
+    with pytest.raises(ModelError) as raised:
+        model_for(number)
+    assert isinstance(raised.value, ValueError)
+    for text in (reason, str(raised.value)):
+        assert all(name in text for name in names), text
+        assert all(family in text for family in FAMILIES), text
+
+
+def test_supported_models_have_no_reason_to_refuse() -> None:
+    assert all(unsupported_reason(number) == '' for number in SUPPORTED)
+    assert len(SUPPORTED) == 32 and len(ALL_MODELS) == 38
+
+
+def test_model_named() -> None:
+    assert model_named('xl430-w250') is model_for(1060)
+    assert model_named(' XM430-W350-T ') is model_for(1020)
+    assert model_named('xh540-w270-t/r') is model_for(1100)
+    assert model_named('XW430-T200') is model_for(1280)
+    assert model_named('XC330-M288') is model_for(1240)
+    with pytest.raises(ModelError, match='XL-320|XL320'):
+        model_named('XL320')
+
+
+def test_item_lookups_fail_clearly() -> None:
+    model = model_for(1060)
+    with pytest.raises(KeyError, match='XL430-W250.*goal_current'):
+        model.item('goal_current')
+    with pytest.raises(KeyError, match='address 1'):
+        model.by_address(1)
+    assert model.lookup(126).name == 'present_load' and model.has('present_load')
+    assert model.decode_hardware_errors(0x24) == ['overheating', 'overload']
+
+
+def test_physics_between_and_beyond_the_published_points() -> None:
+    physics = model_for(1020).physics
+    assert physics.at(12.0) == physics.nominal
+    middle = physics.at((12.0 + 14.8) / 2)
+    assert middle.stall_torque_nm == pytest.approx((4.1 + 4.8) / 2)
+    assert middle.no_load_speed_rpm == pytest.approx((46 + 57) / 2)
+    assert physics.at(5.0) == physics.points[0] and physics.at(30.0) == physics.points[-1]
