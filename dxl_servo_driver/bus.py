@@ -39,6 +39,10 @@ import serial
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
 DEADLINE_SLACK_S = 0.002
+# One-off reads differ in length over this many consecutive requests (see Bus.read).
+READ_TAGS = 8
+# A confirmed read tries this many times more to get two equal answers in a row.
+CONFIRM_ATTEMPTS = 3
 BITS_PER_BYTE = 10
 STATUS_OVERHEAD = 11           # header 4, id, length 2, instruction, error, crc 2
 PING_REPLY_PARAMS = 3          # model number (2), firmware version (1)
@@ -340,6 +344,7 @@ class Bus:
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...]], bytes] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
         self._pending: Optional[SyncRead] = None
+        self._read_tag = 0
 
     # timing ------------------------------------------------------------------------------
     def byte_time_s(self, n_bytes: int) -> float:
@@ -529,10 +534,41 @@ class Bus:
                     break
         return found
 
-    def read(self, servo_id: int, address: int, length: int) -> bytes:
-        """Return length bytes of the servo's control table from address."""
-        return self.transact(servo_id, Instruction.READ, struct.pack('<HH', address, length),
-                             length, f'read of {length} bytes at {address}')
+    def read(self, servo_id: int, address: int, length: int, confirm: bool = True) -> bytes:
+        """
+        Return length bytes of the servo's control table from address.
+
+        A status packet does not say which request it answers, and a reply that comes late
+        (a frozen adapter) has the id and often the length the next read of that servo
+        expects. So consecutive one-off reads ask for a few bytes more each (before the
+        register where the table has room, after it otherwise; reserved addresses read as
+        zero): the reply's length tells most late replies from the answer. With confirm (for
+        values that do not change by themselves) a second read must agree, which catches the
+        rest; changing values are read with read_fresh() and dated by the caller.
+        """
+        data = self.read_fresh(servo_id, address, length)[0]
+        if not confirm:
+            return data
+        for _ in range(CONFIRM_ATTEMPTS):
+            again = self.read_fresh(servo_id, address, length)[0]
+            if again == data:
+                return data
+            self.counters.stale += 1
+            self.mark_dirty()
+            data = again
+        raise CorruptReply(f'id {servo_id}: read of {length} bytes at {address}: replies '
+                           'disagree (late replies on the bus?)', servo_id)
+
+    def read_fresh(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
+        """Return (data, time the request went out) of one length-tagged read (see read())."""
+        self._read_tag = (self._read_tag + 1) % READ_TAGS
+        before = min(self._read_tag, address)
+        extra = self._read_tag
+        data, sent_s = self._transact(servo_id, Instruction.READ,
+                                      struct.pack('<HH', address - before, length + extra),
+                                      length + extra, f'read of {length} bytes at {address}',
+                                      None)
+        return data[before:before + length], sent_s
 
     def read_dated(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
         """

@@ -50,6 +50,15 @@ RETRY_BACKOFF_S = 0.5     # a failed restore is tried again after this
 REJOIN_INTERVAL_S = 1.0   # a servo missing after the adapter came back is probed this often
 
 
+# A changing register this close to the Realtime Tick is read with it, to date the reply.
+DATED_SPAN_BYTES = 64
+
+
+def _changes_by_itself(item: ct.Item) -> bool:
+    """Return True for registers the servo changes (present values, tick, flags, errors)."""
+    return item.area == 'ram' and (item.access == 'R' or item.name.startswith('indirect_data'))
+
+
 # A servo that missed this many sync reads in a row is not retried on its own in a cycle.
 SILENT_AFTER_FAILURES = 3
 
@@ -247,7 +256,30 @@ class Manager:
     def _read(self, servo: Servo, name: str) -> int:
         bus = self._io()
         item = ct.BY_NAME[name]
-        return int(self._try(lambda: bus.read_item(servo.servo_id, item)))
+        if not _changes_by_itself(item):
+            # Confirmed by a second read: a late reply cannot pass for the value.
+            return int(self._try(lambda: bus.read_item(servo.servo_id, item)))
+        return int(self._try(lambda: self._read_dated_item(servo, item)))
+
+    def _read_dated_item(self, servo: Servo, item: ct.Item) -> int:
+        """Read a value that changes by itself with the Realtime Tick, refusing a late reply."""
+        bus = self._io()
+        tick = ct.BY_NAME['realtime_tick']
+        start = min(tick.address, item.address)
+        end = max(tick.address + tick.size, item.address + item.size)
+        if end - start > DATED_SPAN_BYTES:
+            # Too far from the tick to read both in one go: the length tag is the guard.
+            data = bus.read(servo.servo_id, item.address, item.size, confirm=False)
+            return int.from_bytes(data, 'little', signed=item.signed)
+        data, sent_s = bus.read_fresh(servo.servo_id, start, end - start)
+        at = tick.address - start
+        if not servo.tick.check(int.from_bytes(data[at:at + tick.size], 'little'), sent_s,
+                                time.monotonic()):
+            self._refuse_stale(servo)
+            raise CorruptReply(f'id {servo.servo_id}: a reply older than its request '
+                               '(refused)', servo.servo_id)
+        at = item.address - start
+        return int.from_bytes(data[at:at + item.size], 'little', signed=item.signed)
 
     def _write(self, servo: Servo, name: str, value: int) -> None:
         bus = self._io()
@@ -611,7 +643,7 @@ class Manager:
         try:
             bus = self._io()
             result = bus.end_sync_read(reading.pending)
-            received = self._clock()
+            received = time.monotonic()   # the bus dates requests on this clock
             if (retry_until is not None and self.config.read_retries
                     and not result.clean):
                 self._retry_failed(result, reading.length, retry_until)
@@ -703,7 +735,7 @@ class Manager:
             servo.fresh = False
             self._restarted(servo)
             return None
-        if not servo.tick.check(values[IDX_TICK], sent_s, self._clock()):
+        if not servo.tick.check(values[IDX_TICK], sent_s, time.monotonic()):
             self._refuse_stale(servo)
             return None
         return values
@@ -733,7 +765,7 @@ class Manager:
                     continue
                 self.retry_successes += 1
                 result.data[servo_id] = answer
-                result.dated[servo_id] = (sent_s, self._clock())
+                result.dated[servo_id] = (sent_s, time.monotonic())
                 break
 
     def _restarted(self, servo: Servo) -> None:
@@ -782,6 +814,7 @@ class Manager:
             pass   # a servo in trouble may not answer reads: the last good state will do
         servo.torque_maybe_on = False   # a reboot clears torque enable
         self._try(lambda: bus.reboot(servo.servo_id))
+        servo.tick.reset()   # its Realtime Tick starts again from 0
         yield
         deadline = self._clock() + BOOT_TIMEOUT_S
         next_ping = self._clock() + BOOT_POLL_S
@@ -805,7 +838,7 @@ class Manager:
         bus = self._io()
         bus.ping(servo.servo_id)
         yield
-        values = BLOCK.decode(bus.read(servo.servo_id, BLOCK.read_address, BLOCK.size))
+        values = BLOCK.decode(bus.read_fresh(servo.servo_id, BLOCK.read_address, BLOCK.size)[0])
         yield
         servo.status = ''
         if values[IDX_CANARY] != 0:
