@@ -66,7 +66,9 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('latency_timer', float, 16.0,
               'Latency timer of the USB adapter (16 ms is the Linux FTDI default; 1 ms with our '
               'udev rule). Used for reply deadlines and the bus-rate report.', 'ms', 0.0, 255.0),
-    ParamSpec('ping_retries', int, 3, 'Pings per servo at configure before it counts as missing.',
+    ParamSpec('ping_retries', int, 3,
+              'Pings per servo at configure before it counts as missing; also the attempts of '
+              'every other configure and service transaction.',
               '', 1, 100),
     ParamSpec('missing_servo', str, 'refuse',
               'A configured servo that does not answer at configure: refuse to start, or skip it '
