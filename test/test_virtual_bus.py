@@ -17,6 +17,9 @@ import serial
 ADDR_PROFILE_ACCELERATION = control_table.lookup('profile_acceleration').address
 ADDR_ID = control_table.lookup('id').address
 ADDR_MODEL_NUMBER = control_table.lookup('model_number').address
+ADDR_OPERATING_MODE = control_table.lookup('operating_mode').address
+ADDR_TORQUE_ENABLE = control_table.lookup('torque_enable').address
+ADDR_GOAL_VELOCITY = control_table.lookup('goal_velocity').address
 
 
 T = TypeVar('T')
@@ -223,6 +226,51 @@ def test_wire_timing_paces_replies(virtual_bus: StartVirtualBus,
     assert int(stats.split()[2].split('=')[1]) >= 3
 
 
+def test_trace_state_logs_present_position_on_the_wall_clock(
+        virtual_bus: StartVirtualBus, tmp_path: pathlib.Path,
+        handler: sdk.Protocol2PacketHandler) -> None:
+    trace = tmp_path / 'state.txt'
+    start_s = time.time()
+    vb = virtual_bus([1, 2], 1_000_000, extra_args=['--trace-state', str(trace)])
+    port = open_sdk_port(vb.device, 1_000_000)
+    try:
+        # Servo 1 turns (velocity mode), so its position differs at every read below.
+        assert retried(lambda: handler.write1ByteTxRx(port, 1, ADDR_OPERATING_MODE, 1)) == (
+            sdk.COMM_SUCCESS, 0)
+        assert retried(lambda: handler.write1ByteTxRx(port, 1, ADDR_TORQUE_ENABLE, 1)) == (
+            sdk.COMM_SUCCESS, 0)
+        assert retried(lambda: handler.write4ByteTxRx(port, 1, ADDR_GOAL_VELOCITY, 200)) == (
+            sdk.COMM_SUCCESS, 0)
+    finally:
+        port.closePort()
+    reads = []   # (wall time before the get, value)
+    for _ in range(3):
+        time.sleep(0.05)
+        before_s = time.time()
+        reads.append((before_s, vb.get(1, 'present_position')))
+    time.sleep(0.05)
+    assert vb.stop() == 0   # the trace file is complete once the server has exited
+    end_s = time.time()
+    samples: dict[int, list[tuple[float, int]]] = {1: [], 2: []}
+    for line in trace.read_text().splitlines():
+        stamp, servo_id, value = line.split()
+        samples[int(servo_id)].append((float(stamp), int(value)))
+    for servo_samples in samples.values():
+        stamps = [stamp for stamp, _ in servo_samples]
+        assert len(stamps) > 10
+        assert stamps == sorted(set(stamps))
+        assert start_s <= stamps[0] and stamps[-1] <= end_s   # time.time(), not monotonic
+        gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        assert 0.001 <= gaps[len(gaps) // 2] <= 0.01   # every 2 ms (a busy machine: later)
+    assert [value for _, value in reads] == sorted({value for _, value in reads})   # turning
+    # Nothing advances the physics between two gets (no bus traffic, instant timing): each
+    # value read shows up in the trace after its get was asked, never before.
+    bounds = [before_s for before_s, _ in reads] + [end_s]
+    for (before_s, value), next_s in zip(reads, bounds[1:]):
+        stamps = [stamp for stamp, traced in samples[1] if traced == value]
+        assert stamps and before_s <= stamps[0] < next_s, (before_s, value, stamps[:3])
+
+
 def test_stdin_at_eof_does_not_stop_the_server(virtual_bus: StartVirtualBus,
                                                handler: sdk.Protocol2PacketHandler) -> None:
     vb = virtual_bus([1], 1_000_000, stdin=subprocess.DEVNULL)
@@ -292,6 +340,7 @@ def test_stale_link_of_ours_is_replaced(virtual_bus: StartVirtualBus,
     ['--ids', '1', '--timing', 'slow'],
     ['--ids', '1', '--latency-ms', '1'],        # latency without wire timing
     ['--ids', '1', '--return-delay-time', '255'],
+    ['--ids', '1', '--trace-state', '/nonexistent/dir/state.txt'],
 ])
 def test_bad_arguments_one_line_and_nonzero_exit(virtual_bus: StartVirtualBus,
                                                  args: list[str]) -> None:

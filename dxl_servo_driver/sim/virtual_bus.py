@@ -3,6 +3,7 @@
 
   virtual_bus --ids 1 2 3 --baud 1000000 --link /tmp/ttyDXL [--timing instant|wire]
               [--latency-ms F] [--return-delay-time RAW] [--seed N]
+              [--trace-goals FILE] [--trace-state FILE]
 
 Prints the pty's device path as its first stdout line, then answers control lines read on
 standard input (sim/control.py) with one line each. SIGINT/SIGTERM end it cleanly (exit 0) and
@@ -175,6 +176,52 @@ class GoalTracer:
         self._out.write(f'{now_s:.6f} {servo_id} {value}\n')
 
 
+# State trace: one sample of every servo this often; the file is flushed this often.
+STATE_TRACE_PERIOD_S = 0.002
+STATE_TRACE_FLUSH_S = 0.1
+
+
+class StateTracer:
+    """
+    Log every servo's Present Position every period_s, with the wall-clock time.
+
+    One line per servo and sample: `<time.time()> <id> <present_position raw>`. The value is the
+    register as a read arriving at that moment would see it: the physics is not advanced for
+    the trace, so tracing changes nothing the servos answer. The server takes the samples from
+    its own thread between packets (sample(), next_s), so a sample and a reply never race. The
+    wall clock is what a ROS node stamps its messages with, so a test can tell which time a
+    published sample belongs to.
+    """
+
+    def __init__(self, out: TextIO, bus: SimBus, period_s: float = STATE_TRACE_PERIOD_S,
+                 wall_clock: Callable[[], float] = time.time) -> None:
+        self._out = out
+        self._bus = bus
+        self._period_s = period_s
+        self._wall_clock = wall_clock
+        self.next_s = float('-inf')     # when the next sample is due (the server's clock)
+        self._flush_s = float('-inf')
+
+    def sample(self, now_s: float) -> None:
+        """Log one sample of every servo if one is due at now_s (the server's clock)."""
+        if now_s < self.next_s:
+            return
+        self.next_s += self._period_s
+        if self.next_s <= now_s:
+            # Behind (a long reply wait): the next one a period from now, no burst of samples.
+            self.next_s = now_s + self._period_s
+        bus = self._bus
+        with bus.lock:
+            wall_s = self._wall_clock()
+            lines = ''.join(
+                f'{wall_s:.6f} {servo_id} {bus.servo(servo_id).memory.get("present_position")}\n'
+                for servo_id in bus.servo_ids())
+        self._out.write(lines)
+        if now_s >= self._flush_s:
+            self._flush_s = now_s + STATE_TRACE_FLUSH_S
+            self._out.flush()
+
+
 class VirtualBusServer:
     """Serve a SimBus on a pseudo-terminal."""
 
@@ -195,6 +242,7 @@ class VirtualBusServer:
         self._stopping = False
         self.device = ''
         self.goal_tracer: 'GoalTracer | None' = None
+        self.state_tracer: 'StateTracer | None' = None
         self.spin_s = SPIN_S
 
     def open_pty(self, initial_baud_bps: int) -> str:
@@ -237,6 +285,9 @@ class VirtualBusServer:
                     timeout_s = 0.0   # look for input, then the next servo
                 else:
                     timeout_s = min(timeout_s, CONTROL_PERIOD_S)
+            tracer = self.state_tracer
+            if tracer is not None:
+                timeout_s = min(timeout_s, max(0.0, tracer.next_s - now_s))
             try:
                 readable, _, _ = select.select([self._master, self._wake_r], [], [], timeout_s)
             except InterruptedError:  # pragma: no cover - PEP 475 retries; kept for safety
@@ -246,6 +297,8 @@ class VirtualBusServer:
             if self._master in readable:
                 self._receive()
             self._deliver_due()
+            if tracer is not None:
+                tracer.sample(self._clock())
 
     def close(self) -> None:
         """Close every descriptor."""
@@ -323,6 +376,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
     parser.add_argument('--trace-goals', default=None, metavar='FILE',
                         help='append "<monotonic time> <id> <goal_position>" per goal written')
+    parser.add_argument('--trace-state', default=None, metavar='FILE',
+                        help='append "<wall-clock time> <id> <present_position>" for every '
+                             f'servo every {STATE_TRACE_PERIOD_S * 1000:g} ms')
     args = parser.parse_args(argv)
     bad_ids = [i for i in args.ids if not 0 <= i <= control.MAX_SERVO_ID]
     if bad_ids:
@@ -401,15 +457,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
         return 1
     server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0)
-    trace_file = None
-    if args.trace_goals:
+    trace_files: dict[str, TextIO] = {}
+    for option, path in (('goals', args.trace_goals), ('state', args.trace_state)):
+        if not path:
+            continue
         try:
-            trace_file = open(args.trace_goals, 'a', encoding='ascii')
+            trace_files[option] = open(path, 'a', encoding='ascii')
         except OSError as exc:
-            print(f'virtual_bus: error: cannot open {args.trace_goals}: {exc.strerror}',
+            print(f'virtual_bus: error: cannot open {path}: {exc.strerror}',
                   file=sys.stderr, flush=True)
+            for trace_file in trace_files.values():
+                trace_file.close()
             return 1
-        server.goal_tracer = GoalTracer(trace_file)
+    if 'goals' in trace_files:
+        server.goal_tracer = GoalTracer(trace_files['goals'])
+    if 'state' in trace_files:
+        server.state_tracer = StateTracer(trace_files['state'], bus)
 
     def on_signal(signum: int, frame: object) -> None:
         server.stop()
@@ -440,7 +503,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if linked:
             _remove_link(args.link, device)
         server.close()
-        if trace_file is not None:
+        for trace_file in trace_files.values():
             trace_file.close()
     return 0
 
