@@ -25,8 +25,9 @@ import termios
 import threading
 import time
 import tty
-from typing import Any, Callable, Optional, Protocol
+from typing import Any, Callable, Optional
 
+from dxl_servo_driver.bus import RawPort
 from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
 from dxl_servo_driver.sim.virtual_bus import set_tty_speed, tty_speed_bps
 
@@ -435,34 +436,6 @@ class _Controls:
     def freeze(self, duration_s: float) -> None:
         """Stop delivering servo->host bytes for duration_s from now."""
         self.engine.freeze(duration_s)
-
-
-class RawPort(Protocol):
-    """The byte-level port FaultyPort wraps and offers (as dxl_servo_driver.bus.RawPort)."""
-
-    @property
-    def baudrate(self) -> int:
-        """Return the line speed in bit/s."""
-
-    @baudrate.setter
-    def baudrate(self, baud_bps: int) -> None:
-        """Change the line speed."""
-
-    @property
-    def in_waiting(self) -> int:
-        """Return how many received bytes wait to be read."""
-
-    def write(self, data: bytes) -> int:
-        """Send bytes."""
-
-    def read(self, size: int, timeout_s: float) -> bytes:
-        """Block until size bytes arrived or timeout_s passed; return what arrived."""
-
-    def reset_input_buffer(self) -> None:
-        """Drop whatever was received and not read."""
-
-    def close(self) -> None:
-        """Release the port."""
 
 
 class FaultyPort(_Controls):

@@ -1,16 +1,21 @@
 """
-Test-session set-up shared by every test, and the fixture that starts virtual_bus processes.
+Test-session set-up shared by every test, and the fixtures the process-level tests share.
 
 DDS is isolated before anything imports rclpy: a random ROS_DOMAIN_ID per test session and
 localhost-only discovery, so parallel runs on one machine never see each other's nodes.
 """
 
 import os
+import pathlib
 import random
-from typing import Any, Iterator, List
+import tempfile
+from typing import Any, Iterator, List, TYPE_CHECKING
 
-from processes import StartVirtualBus, VirtualBusProcess
+from processes import fresh_domain_id, StartVirtualBus, VirtualBusProcess
 import pytest
+
+if TYPE_CHECKING:
+    from node_harness import Client
 
 if 'DXL_TEST_KEEP_DOMAIN' not in os.environ:
     # Domain ids 1..101 keep the derived UDP ports inside the valid range on every RMW.
@@ -32,3 +37,35 @@ def virtual_bus() -> Iterator[StartVirtualBus]:
     yield start
     for process in started:
         process.stop()
+
+
+@pytest.fixture
+def workdir() -> Iterator[pathlib.Path]:
+    """Yield a scratch directory for params files, node output and traces; removed afterwards."""
+    with tempfile.TemporaryDirectory(prefix='dxl_test_') as path:
+        yield pathlib.Path(path)
+
+
+@pytest.fixture
+def domain_id() -> int:
+    """Return a DDS domain of this test's own, for node processes and their client."""
+    return fresh_domain_id()
+
+
+@pytest.fixture
+def client(domain_id: int) -> Iterator['Client']:
+    """Yield a client node on domain_id (topics and service calls); shut down after."""
+    # Imported here: rclpy is loaded only once the DDS environment above is set.
+    from node_harness import Client, new_context
+    import rclpy
+    context = new_context(domain_id)
+    try:
+        client = Client(context)
+    except BaseException:
+        rclpy.try_shutdown(context=context)
+        raise
+    try:
+        yield client
+    finally:
+        client.close()
+        rclpy.try_shutdown(context=context)

@@ -27,18 +27,16 @@ import pathlib
 import random
 import re
 import signal
-import tempfile
 import threading
 import time
 from typing import Any, Dict, Iterator, List, Optional, Sequence, Tuple
 
 from adapter_faults import AdapterProxy, Faults
 from diagnostic_msgs.msg import DiagnosticArray
-from node_harness import Client, new_context
+from node_harness import Client
 from processes import (
-    fresh_domain_id, NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
+    NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
 import pytest
-import rclpy
 from sensor_msgs.msg import JointState
 
 CHAOS_S = float(os.environ.get('DXL_CHAOS_SECONDS', '600'))
@@ -437,32 +435,7 @@ def in_windows(stamp: float, windows: Sequence[Tuple[float, float]]) -> bool:
 
 
 # ------------------------------------------------------------------------------ fixtures
-@pytest.fixture
-def workdir() -> Iterator[pathlib.Path]:
-    # Not tmp_path: a 10-minute trace is tens of MB, removed with everything else.
-    with tempfile.TemporaryDirectory(prefix='dxl_chaos_') as path:
-        yield pathlib.Path(path)
-
-
-@pytest.fixture
-def domain_id() -> int:
-    return fresh_domain_id()
-
-
-@pytest.fixture
-def client(domain_id: int) -> Iterator[Client]:
-    context = new_context(domain_id)
-    try:
-        client = Client(context)
-    except BaseException:
-        rclpy.try_shutdown(context=context)
-        raise
-    try:
-        yield client
-    finally:
-        client.close()
-        rclpy.try_shutdown(context=context)
-
+# workdir, domain_id and client come from conftest.py.
 
 @dataclasses.dataclass
 class Rig:

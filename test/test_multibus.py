@@ -12,15 +12,13 @@ import math
 import os
 import pathlib
 import signal
-import tempfile
 import time
-from typing import Dict, Iterator, List
+from typing import Dict, List
 
 from node_harness import Client, new_context
 from processes import (
     EXIT_TIMEOUT_S, fresh_domain_id, NodeProcess, params_yaml, START_TIMEOUT_S,
     VirtualBusProcess)
-import pytest
 import rclpy
 
 RAD_PER_PULSE = 2.0 * math.pi / 4096.0
@@ -30,12 +28,6 @@ def joint_params(joints: Dict[str, int]) -> Dict[str, Dict[str, object]]:
     """Return params_yaml's joints: each name with its id, in position mode."""
     return {name: {'id': servo_id, 'operating_mode': 'position'}
             for name, servo_id in joints.items()}
-
-
-@pytest.fixture
-def workdir() -> Iterator[pathlib.Path]:
-    with tempfile.TemporaryDirectory(prefix='dxl_multibus_') as path:
-        yield pathlib.Path(path)
 
 
 LEFT = {'l_shoulder': 1, 'l_elbow': 2}

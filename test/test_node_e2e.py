@@ -11,43 +11,13 @@ import os
 import pathlib
 import re
 import signal
-import tempfile
-from typing import Iterator, List, Optional
+from typing import List, Optional
 
-from node_harness import Client, new_context
+from node_harness import Client
 from processes import (
-    EXIT_TIMEOUT_S, fresh_domain_id, NodeProcess, params_yaml, START_TIMEOUT_S,
-    VirtualBusProcess)
-import pytest
-import rclpy
+    EXIT_TIMEOUT_S, NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
 
 RAD_PER_PULSE = 2.0 * math.pi / 4096.0
-
-
-@pytest.fixture
-def workdir() -> Iterator[pathlib.Path]:
-    with tempfile.TemporaryDirectory(prefix='dxl_e2e_') as path:
-        yield pathlib.Path(path)
-
-
-@pytest.fixture
-def domain_id() -> int:
-    return fresh_domain_id()
-
-
-@pytest.fixture
-def client(domain_id: int) -> Iterator[Client]:
-    context = new_context(domain_id)
-    try:
-        client = Client(context)
-    except BaseException:
-        rclpy.try_shutdown(context=context)
-        raise
-    try:
-        yield client
-    finally:
-        client.close()
-        rclpy.try_shutdown(context=context)
 
 
 JOINTS = {'j1': {'id': 1, 'operating_mode': 'position'},

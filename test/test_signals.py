@@ -11,46 +11,18 @@ import pathlib
 import re
 import signal
 import subprocess
-import tempfile
 import threading
 import time
-from typing import Any, Callable, Dict, Iterator, List, Tuple
+from typing import Any, Callable, Dict, List, Tuple
 
-from node_harness import Client, new_context
+from node_harness import Client
 from processes import (
     EXIT_TIMEOUT_S, fresh_domain_id, node_executable, NodeProcess, params_yaml,
     START_TIMEOUT_S, StartVirtualBus)
 import pytest
-import rclpy
 
 MANY = 20   # servos on the bus: activation takes long enough to be hit by a signal
 POLL_S = 0.002
-
-
-@pytest.fixture
-def workdir() -> Iterator[pathlib.Path]:
-    with tempfile.TemporaryDirectory(prefix='dxl_signals_') as path:
-        yield pathlib.Path(path)
-
-
-@pytest.fixture
-def domain_id() -> int:
-    return fresh_domain_id()
-
-
-@pytest.fixture
-def client(domain_id: int) -> Iterator[Client]:
-    context = new_context(domain_id)
-    try:
-        client = Client(context)
-    except BaseException:
-        rclpy.try_shutdown(context=context)
-        raise
-    try:
-        yield client
-    finally:
-        client.close()
-        rclpy.try_shutdown(context=context)
 
 
 def many_joints(count: int) -> Dict[str, Dict[str, Any]]:
