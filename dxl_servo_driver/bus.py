@@ -503,11 +503,6 @@ class Bus:
         data = self.transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping')
         return data[0] | (data[1] << 8)
 
-    def ping_info(self, servo_id: int) -> Tuple[int, int]:
-        """Return (model number, firmware version) of the servo."""
-        data = self.transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping')
-        return data[0] | (data[1] << 8), data[2]
-
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping."""
         packet = encode_instruction(BROADCAST_ID, Instruction.PING)

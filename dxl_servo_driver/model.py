@@ -366,11 +366,6 @@ class TickClock:
         """Forget the offset (the servo restarted: its tick started again from 0)."""
         self._bound_ms = None
 
-    @property
-    def synced(self) -> bool:
-        """Return True once a sample has set the offset."""
-        return self._bound_ms is not None
-
     def check(self, tick: int, sent_s: float, received_s: float) -> bool:
         """Return False when the sample was taken before sent_s; learn from it otherwise."""
         sent_ms = sent_s * 1000.0
