@@ -62,7 +62,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
     cpu0 = time.process_time()
     decode = block.decode_motion
     while time.monotonic() - wall0 < seconds:
-        results = bus.sync_read(block.read_address, block.motion_size, ids)
+        results = bus.sync_read(block.read_address, block.motion_size, ids).data
         for servo_id in ids:
             data = results[servo_id]
             if isinstance(data, bytes):
