@@ -157,6 +157,11 @@ class SimBus:
             return self._servo(servo_id)
 
     # ---- fault injection ----------------------------------------------------------------------
+    def reseed(self, seed: int) -> None:
+        """Restart the fault-injection random draws from seed (repeatable fault tests)."""
+        with self.lock:
+            self._random.seed(seed)
+
     def set_drop(self, servo_id: int, probability: float) -> None:
         """Lose this servo's status packets with the given probability."""
         with self.lock:
