@@ -31,6 +31,8 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from dxl_servo_driver import model  # noqa: E402 - after the path set-up above
+from dxl_servo_driver.models import model_for  # noqa: E402
+from dxl_servo_driver.models.units import units_for  # noqa: E402
 
 BAUDS = (1_000_000, 4_000_000)
 COUNTS = (1, 6, 12, 24)
@@ -44,6 +46,7 @@ CLOCK_TICK_S = 1.0 / os.sysconf('SC_CLK_TCK')
 SDK_READ_BYTES = 10     # present_current + present_velocity + present_position
 WRITE_BYTES = 4         # goal_position
 HEALTH_RATE_HZ = 10.0   # the node reads its whole state block at state_rate (default 10 Hz)
+SEED_UNITS = units_for(model_for(1030))   # the simulated servos are the seed's model
 
 
 def percentile(values: List[float], fraction: float) -> float:
@@ -208,7 +211,7 @@ class NodeUnderTest:
                 k += 1
                 msg = self._msg_type()
                 msg.name = self.joints
-                msg.value = [model.position_to_rad(raw)] * self.n
+                msg.value = [SEED_UNITS.position_to_rad(raw)] * self.n
                 published.append((time.monotonic(), raw))
                 self.publisher.publish(msg)
                 next_command += 1.0 / COMMAND_RATE_HZ
@@ -242,7 +245,7 @@ def wire_bytes(variant: str, n: int, rate_hz: float, writes_per_cycle: float) ->
     """Return the average bytes one cycle of a variant puts on the wire."""
     if variant == 'sdk_baseline':
         return model.sync_read_bytes(n, SDK_READ_BYTES) + model.sync_write_bytes(n, WRITE_BYTES)
-    block = model.STATE_BLOCK
+    block = model.BLOCK_SHAPE
     read = model.sync_read_bytes(n, block.motion_size)
     if variant == 'bus':
         return read + model.sync_write_bytes(n, WRITE_BYTES)

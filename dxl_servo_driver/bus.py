@@ -33,6 +33,7 @@ import time
 from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Union
 
 from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.protocol import BROADCAST_ID, crc16, encode_instruction, ErrorCode
 from dxl_servo_driver.protocol import Frame, HEADER, Instruction, scan_frames, unstuff
 import serial
@@ -61,35 +62,6 @@ ERROR_TEXT: Dict[int, str] = {
 # The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
 BROADCAST_PING_PER_ID_S = 0.003
 MAX_ID = 252
-
-
-class BusError(Exception):
-    """A bus operation failed; servo_id names the servo when one is concerned."""
-
-    def __init__(self, message: str, servo_id: Optional[int] = None) -> None:
-        super().__init__(message)
-        self.servo_id = servo_id
-
-
-class PortError(BusError):
-    """The serial port cannot be opened, or was lost (adapter unplugged)."""
-
-
-class CommTimeout(BusError, TimeoutError):
-    """No (complete, matching) status packet arrived before the deadline."""
-
-
-class CorruptReply(BusError):
-    """A status packet from the servo arrived but failed its CRC or framing check."""
-
-
-class StatusError(BusError):
-    """The servo answered with an error code in its status packet."""
-
-    def __init__(self, message: str, servo_id: int, code: int, alert: bool) -> None:
-        super().__init__(message, servo_id)
-        self.code = code
-        self.alert = alert
 
 
 class RawPort(Protocol):
@@ -309,13 +281,13 @@ class SyncResult:
     """
     What a sync read brought back.
 
-    data maps each id asked to its bytes or to the BusError saying why there are none. clean
+    data maps each id asked to its bytes or to the CommError saying why there are none. clean
     is True when the reply block was exactly what was expected (every reply there, in order,
     nothing else), so callers may skip their own checks. sent_s is when the request went out
     (monotonic): a sample cannot be older than that. alerts holds each reply's alert bit.
     """
 
-    data: Dict[int, Union[bytes, BusError]]
+    data: Dict[int, Union[bytes, CommError]]
     clean: bool
     sent_s: float
     alerts: Dict[int, bool] = field(default_factory=dict)
@@ -619,7 +591,7 @@ class Bus:
         """
         Read length bytes at address from every servo in ids with one SYNC_READ.
 
-        Each id maps to its data or to a BusError; a servo that is silent or corrupted never
+        Each id maps to its data or to a CommError; a servo that is silent or corrupted never
         stops the others from being read.
         """
         return self.end_sync_read(self.begin_sync_read(address, length, ids))
@@ -685,7 +657,7 @@ class Bus:
         return self._collect_slow(pending, bytearray(buffer))
 
     def _parse_sync_fast(self, buffer: bytes, ids: Tuple[int, ...],
-                         length: int) -> Optional[Dict[int, Union[bytes, BusError]]]:
+                         length: int) -> Optional[Dict[int, Union[bytes, CommError]]]:
         """
         Parse the usual case at once: every reply there, in order, unstuffed, error byte 0.
 
@@ -704,7 +676,7 @@ class Bus:
             if len(self._status_prefixes) > 64:
                 self._status_prefixes.clear()
             self._status_prefixes[key] = prefixes
-        results: Dict[int, Union[bytes, BusError]] = {}
+        results: Dict[int, Union[bytes, CommError]] = {}
         start = 0
         for servo_id, prefix in zip(ids, prefixes):
             body_end = start + reply_size - 2
@@ -775,7 +747,7 @@ class Bus:
             buffer += self._read(max(missing, 1) * reply_size, pending.deadline_s)
         if anomalies or pos < len(buffer) or len(entries) < len(ids):
             self.mark_dirty()   # a missing reply may still come, late
-        results: Dict[int, Union[bytes, BusError]] = {}
+        results: Dict[int, Union[bytes, CommError]] = {}
         alerts: Dict[int, bool] = {}
         latest = 0   # frame index of the last accepted reply, in request order
         for servo_id in ids:

@@ -12,14 +12,16 @@ from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
+from dxl_servo_driver import models
+from dxl_servo_driver.errors import ConfigurationError
 import yaml  # type: ignore[import-untyped]
 
 
-class ParameterFileError(ValueError):
+class ParameterFileError(ConfigurationError):
     """A parameter file ROS could not read; the message names the file and, if any, the key."""
 
 
-class ConfigError(ValueError):
+class ConfigError(ConfigurationError):
     """An invalid configuration; key names the parameter at fault."""
 
     def __init__(self, key: str, message: str) -> None:
@@ -97,7 +99,7 @@ PARAMS: Tuple[ParamSpec, ...] = (
               0.0, 30.0),
 )
 PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in PARAMS}
-JOINT_KEYS = ('id', 'operating_mode', 'torque_constant')
+JOINT_KEYS = ('id', 'operating_mode', 'torque_constant', 'model')
 # Parameters every rclpy node has.
 ROS_PARAMS = frozenset({'use_sim_time', 'start_type_description_service'})
 
@@ -109,8 +111,11 @@ class JointConfig:
     name: str
     servo_id: int
     operating_mode: str
-    torque_constant_nm_per_a: float = model.DEFAULT_TORQUE_CONSTANT_NM_PER_A
+    # None: the model's datasheet value (stall torque / stall current at its nominal voltage).
+    torque_constant_nm_per_a: Optional[float] = None
     registers: Tuple[Tuple[str, int], ...] = ()
+    # The model the servo must be (`<joint>.model`); None: any supported model.
+    model: Optional[models.Model] = None
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
@@ -243,47 +248,103 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     servo_id = _check_type(key, params[key], int)
     if not 0 <= servo_id <= 252:
         raise ConfigError(key, f'id {servo_id} is outside 0..252')
+    key = f'{name}.model'
+    wanted: Optional[models.Model] = None
+    if key in params:
+        wanted = _model(key, params[key])
     key = f'{name}.operating_mode'
     mode = _check_type(key, params.get(key, 'position'), str)
     if mode not in ct.OPERATING_MODES:
         raise ConfigError(key, f'unknown operating mode {mode!r} (one of '
                           f'{list(ct.OPERATING_MODES)})')
+    if wanted is not None and mode not in wanted.modes:
+        raise ConfigError(key, f'{wanted.name} has no {mode} mode (its modes: '
+                          f'{", ".join(wanted.modes)})')
     key = f'{name}.torque_constant'
-    torque_constant = _check_type(key, params.get(key, model.DEFAULT_TORQUE_CONSTANT_NM_PER_A),
-                                  float)
-    if torque_constant <= 0.0:
-        raise ConfigError(key, f'must be positive, got {torque_constant}')
+    torque_constant: Optional[float] = None
+    if key in params:
+        given = float(_check_type(key, params[key], float))
+        if given <= 0.0:
+            raise ConfigError(key, f'must be positive, got {given}')
+        torque_constant = given
     prefix = f'{name}.registers.'
     registers = []
     for key in sorted(k for k in params if k.startswith(prefix)):
         register = key[len(prefix):]
-        try:
-            item = model.writable_register(register)
-        except ValueError as exc:
-            raise ConfigError(key, str(exc)) from None
         value = _check_type(key, params[key], int)
+        registers.append((register, value))
+    joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted)
+    # Without a model the seed's table judges the file now (a register only other models
+    # have is judged at configure, against the model the servo answers with).
+    problem = _check_registers(joint, wanted or models.model_for(ct.MODEL_NUMBER),
+                               lenient=wanted is None)
+    if problem is not None:
+        raise ConfigError(*problem)
+    return joint
+
+
+def _model(key: str, value: Any) -> models.Model:
+    """Return the model a `<joint>.model` value names (a name such as XL430-W250, or a number)."""
+    if isinstance(value, bool) or not isinstance(value, (int, str)):
+        raise ConfigError(key, f'expected a model name (e.g. XL430-W250) or number, got {value!r}')
+    try:
+        if isinstance(value, int) or value.strip().isdigit():
+            return models.model_for(int(value))
+        return models.model_named(value)
+    except models.ModelError as exc:
+        raise ConfigError(key, str(exc)) from None
+
+
+def _check_registers(joint: JointConfig, table: models.Model,
+                     lenient: bool = False) -> Optional[Tuple[str, str]]:
+    """
+    Return (key, reason) for the first register of the joint the model refuses, else None.
+
+    lenient: a register this table lacks passes if another supported model has it.
+    """
+    values = {item.name: item.initial for item in table.items}
+    checked = {}
+    for register, value in joint.registers:
+        key = f'{joint.name}.registers.{register}'
+        if lenient and not table.has(register) and any(
+                other.has(register) for other in models.ALL_MODELS):
+            continue
         try:
+            item = model.writable_register(table, register)
             model.check_range(item, value)
         except ValueError as exc:
-            raise ConfigError(key, str(exc)) from None
-        registers.append((register, value))
-    _check_limits(name, dict(registers), mode)
-    return JointConfig(name, servo_id, mode, torque_constant, tuple(registers))
-
-
-def _check_limits(name: str, registers: Dict[str, int], mode: str) -> None:
+            return key, str(exc)
+        checked[register] = value
     # Values bounded by another register must respect it, as the servo would refuse them (data
     # limit error) at configure: the rules of model.check_register_set, against the file's
     # values where it sets them and the table's initial values elsewhere.
-    values = {item.name: item.initial for item in ct.ITEMS}
-    values.update(registers)
+    values.update(checked)
     # The lower bound of a crossed pair is named (min_position_limit, not max_...).
-    for register in sorted(registers, key=lambda r: r.startswith('max_')):
-        value = registers[register]
+    for register in sorted(checked, key=lambda r: r.startswith('max_')):
         try:
-            model.check_register_set(values, register, value, mode)
+            model.check_register_set(values, register, checked[register], joint.operating_mode)
         except ValueError as exc:
-            raise ConfigError(f'{name}.registers.{register}', str(exc)) from None
+            return f'{joint.name}.registers.{register}', str(exc)
+    return None
+
+
+def describe_register(joint: JointConfig, register: str) -> ct.Item:
+    """Return the item a joint's register names: the configured model's, the seed's, or any."""
+    for table in (joint.model, models.model_for(ct.MODEL_NUMBER), *models.ALL_MODELS):
+        if table is not None and table.has(register):
+            return table.item(register)
+    raise KeyError(register)
+
+
+def check_joint_against(joint: JointConfig, table: models.Model) -> str:
+    """Return why a joint's configuration does not fit the model its servo is ('' if it does)."""
+    if joint.operating_mode not in table.modes:
+        return (f'it has no {joint.operating_mode} mode ({joint.name}.operating_mode; its '
+                f'modes: {", ".join(table.modes)})')
+    problem = _check_registers(joint, table)
+    if problem is not None:
+        return f'parameter {problem[0]!r}: {problem[1]}'
+    return ''
 
 
 def check_thresholds(values: Mapping[str, Any]) -> None:

@@ -18,17 +18,22 @@ from typing import Any, Callable, Dict, Generator, List, Optional, Sequence, Tup
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
-from dxl_servo_driver.bus import Bus, BusError, CommTimeout, CorruptReply, PortError, RawPort
-from dxl_servo_driver.bus import StatusError, SyncRead, SyncResult
-from dxl_servo_driver.config import DriverConfig, JointConfig
+from dxl_servo_driver import models
+from dxl_servo_driver.bus import Bus, RawPort, SyncRead, SyncResult
+from dxl_servo_driver.config import check_joint_against, DriverConfig, JointConfig
+from dxl_servo_driver.errors import (
+    CommError, CommTimeout, CorruptReply, Interrupted, PortError, Refused, StatusError)
+from dxl_servo_driver.model import StateBlock, TickClock
+from dxl_servo_driver.models.units import Units, units_for
 from dxl_servo_driver.tasks import Steps, Task, TaskRunner
+from dxl_servo_driver.transports import open_transport, PortFactory
 
 Log = Callable[[str], None]
-BLOCK = model.STATE_BLOCK
+BLOCK = model.BLOCK_SHAPE   # decodes every model's block; where it lives is Servo.block
 _I = BLOCK.index
 IDX_POSITION = _I['present_position']
 IDX_VELOCITY = _I['present_velocity']
-IDX_CURRENT = _I['present_current']
+IDX_EFFORT = _I['effort']   # present_current, or present_load on models without current
 IDX_TICK = _I['realtime_tick']
 IDX_PWM = _I['present_pwm']
 IDX_VOLTAGE = _I['present_input_voltage']
@@ -41,8 +46,6 @@ IDX_CANARY = BLOCK.canary_index
 WARN_INTERVAL_S = 2.0
 STATUS_BYTES = 11   # status packet overhead
 READ_BYTES = 14     # a READ instruction packet
-TURN_PULSES = model.PULSES_PER_REV
-HALF_TURN = TURN_PULSES // 2
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
 BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
 BOOT_POLL_S = 0.02        # between two pings of a booting servo
@@ -63,12 +66,8 @@ def _changes_by_itself(item: ct.Item) -> bool:
 SILENT_AFTER_FAILURES = 3
 
 
-class ManagerError(Exception):
+class ManagerError(Refused):
     """A failure the user must act on (missing servo, wrong model, port), said in one line."""
-
-
-class Interrupted(Exception):
-    """A stop was requested (a signal) while configuring or activating."""
 
 
 @dataclass
@@ -77,6 +76,11 @@ class Servo:
 
     joint: JointConfig
     mode: str
+    # The table, units and state block of the model it answered with at configure (before:
+    # the configured model, or the seed's).
+    model: models.Model
+    units: Units
+    block: StateBlock
     model_number: int = 0
     firmware_version: int = 0
     online: bool = False            # answered at configure (or since)
@@ -98,7 +102,7 @@ class Servo:
     # so the joint's position stays continuous when the servo re-initialises it (torque on,
     # mode change, reboot, power cut). Always 0 in position mode (single turn).
     turn_offset: int = 0
-    tick: model.TickClock = field(default_factory=model.TickClock)
+    tick: TickClock = field(default_factory=TickClock)
     restarts: int = 0
     switching: bool = False         # a mode switch is under way: commands wait for it
     recoveries: int = 0
@@ -122,6 +126,20 @@ class Servo:
     def last_joint_pulses(self) -> Optional[int]:
         """Return the last position read, in the joint's frame; None if never read."""
         return self.state[IDX_POSITION] + self.turn_offset if self.state is not None else None
+
+    def set_model(self, table: models.Model) -> None:
+        """Take the table, units and state block of a model."""
+        self.model = table
+        self.units = units_for(table, self.joint.torque_constant_nm_per_a)
+        self.block = model.state_block(table, self.units.effort_register)
+
+    @classmethod
+    def of(cls, joint: JointConfig) -> 'Servo':
+        """Return the servo of a joint, with the configured model's table (or the seed's)."""
+        table = joint.model or models.model_for(ct.MODEL_NUMBER)
+        units = units_for(table, joint.torque_constant_nm_per_a)
+        return cls(joint, joint.operating_mode, table, units,
+                   model.state_block(table, units.effort_register))
 
 
 @dataclass
@@ -153,26 +171,6 @@ class Throttle:
         return True
 
 
-def open_port(config: DriverConfig) -> Tuple[RawPort, Any]:
-    """
-    Open the configured port: a serial device, or `sim` for one simulated servo per joint.
-
-    Returns the port and, for `sim`, the SimBus behind it (tests and fault injection use it).
-    """
-    if config.port == 'sim':
-        from dxl_servo_driver.sim.bus import SimBus
-        from dxl_servo_driver.sim.port import SimPortHandler
-        from dxl_servo_driver.sim.virtual_bus import configure_servos
-        sim = SimBus([joint.servo_id for joint in config.joints])
-        configure_servos(sim, config.baud_rate, None)
-        return SimPortHandler(sim, 'sim', config.baud_rate), sim
-    from dxl_servo_driver.bus import open_port as open_serial
-    return open_serial(config.port, config.baud_rate), None
-
-
-PortFactory = Callable[[DriverConfig], Tuple[RawPort, Any]]
-
-
 @dataclass
 class _Reading:
     """The cycle's sync read in flight."""
@@ -187,7 +185,7 @@ class Manager:
     """Servos by joint name on one bus."""
 
     def __init__(self, config: DriverConfig, info: Log = print, warn: Log = print,
-                 error: Log = print, port_factory: PortFactory = open_port,
+                 error: Log = print, port_factory: PortFactory = open_transport,
                  clock: Callable[[], float] = time.monotonic,
                  should_stop: Callable[[], bool] = lambda: False) -> None:
         self.config = config
@@ -203,7 +201,7 @@ class Manager:
         self.port: Optional[RawPort] = None
         self.sim_bus: Any = None   # the SimBus behind `port: sim`
         self.servos: Dict[str, Servo] = {
-            joint.name: Servo(joint, joint.operating_mode) for joint in config.joints}
+            joint.name: Servo.of(joint) for joint in config.joints}
         self.order: List[Servo] = [self.servos[joint.name] for joint in config.joints]
         # Serialises requests (services, topics, the cycle) over the manager's state.
         self.lock = threading.RLock()
@@ -234,12 +232,14 @@ class Manager:
         self._need_full = True
         self._ids_cache: List[Tuple[Servo, int]] = []
         self._reading: Optional[_Reading] = None
-        self._id_list: List[int] = []
+        # The cycle's sync reads: (address, ids) per state-block layout; one on most buses.
+        self._groups: List[Tuple[model.StateBlock, List[int]]] = []
+        self._by_id: Dict[int, Servo] = {}
 
     # transactions outside the cycle -------------------------------------------------------
     def _io(self) -> Bus:
         if self.bus is None:
-            raise BusError('the bus is not open (the node is not configured)')
+            raise CommError('the bus is not open (the node is not configured)')
         return self.bus
 
     def _try(self, action: Callable[[], Any]) -> Any:
@@ -255,7 +255,7 @@ class Manager:
 
     def _read(self, servo: Servo, name: str) -> int:
         bus = self._io()
-        item = ct.BY_NAME[name]
+        item = servo.model.item(name)
         if not _changes_by_itself(item):
             # Confirmed by a second read: a late reply cannot pass for the value.
             return int(self._try(lambda: bus.read_item(servo.servo_id, item)))
@@ -264,7 +264,7 @@ class Manager:
     def _read_dated_item(self, servo: Servo, item: ct.Item) -> int:
         """Read a value that changes by itself with the Realtime Tick, refusing a late reply."""
         bus = self._io()
-        tick = ct.BY_NAME['realtime_tick']
+        tick = servo.model.item('realtime_tick')
         start = min(tick.address, item.address)
         end = max(tick.address + tick.size, item.address + item.size)
         if end - start > DATED_SPAN_BYTES:
@@ -283,7 +283,7 @@ class Manager:
 
     def _write(self, servo: Servo, name: str, value: int) -> None:
         bus = self._io()
-        item = ct.BY_NAME[name]
+        item = servo.model.item(name)
         if name == 'torque_enable' and value:
             servo.torque_maybe_on = True   # before: the write may land even if its reply is lost
         self._try(lambda: bus.write_item(servo.servo_id, item, value))
@@ -296,8 +296,8 @@ class Manager:
         self._write(servo, name, value)
         read_back = self._read(servo, name)
         if read_back != value:
-            raise BusError(f'joint {servo.name!r}: {name} reads back {read_back} after writing '
-                           f'{value}', servo.servo_id)
+            raise CommError(f'joint {servo.name!r}: {name} reads back {read_back} after '
+                            f'writing {value}', servo.servo_id)
 
     # configure / activate ---------------------------------------------------------------
     def configure(self) -> None:
@@ -317,7 +317,7 @@ class Manager:
                         _run(self._apply_configuration(servo))
                 self._set_return_delay()
                 self._refresh_ids()
-            except BusError as exc:
+            except (PortError, CommError) as exc:
                 raise ManagerError(f'configuration failed: {exc}') from None
             budget = self.bus_budget()
             self.info(
@@ -345,7 +345,12 @@ class Manager:
         # in progress (being restored, rebooted, probed) is left out of the cycle's read.
         self._ids_cache = [(servo, servo.servo_id) for servo in self.active_servos()
                            if servo.name not in self.tasks]
-        self._id_list = [servo_id for _, servo_id in self._ids_cache]
+        groups: Dict[Tuple[int, int], Tuple[model.StateBlock, List[int]]] = {}
+        for servo, servo_id in self._ids_cache:
+            block = servo.block
+            groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
+        self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
+        self._by_id = {servo.servo_id: servo for servo in self.order}
 
     def _find_servos(self) -> None:
         bus = self._io()
@@ -356,21 +361,16 @@ class Manager:
             except (CommTimeout, CorruptReply) as exc:
                 missing.append((servo, exc))
                 continue
-            if model_number != ct.MODEL_NUMBER:
-                raise ManagerError(
-                    f'joint {servo.name!r}: id {servo.servo_id} is model {model_number}, '
-                    f'expected {ct.MODEL_NUMBER} (XM430-class control table); refusing to drive '
-                    'an unknown model')
-            servo.model_number = model_number
-            servo.firmware_version = self._read(servo, 'firmware_version')
+            self._take_model(servo, model_number)
             servo.online = True
             errors = self._read(servo, 'hardware_error_status')
             if errors:
                 self.warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
-                          f'latched: {", ".join(ct.decode_hardware_errors(errors))} '
+                          f'latched: {", ".join(servo.model.decode_hardware_errors(errors))} '
                           '(a reboot clears them)')
-            self.info(f'found joint {servo.name!r}: id {servo.servo_id}, model {model_number}, '
-                      f'firmware {servo.firmware_version}, mode {servo.mode}')
+            self.info(f'found joint {servo.name!r}: id {servo.servo_id}, {servo.model.name} '
+                      f'(model {model_number}), firmware {servo.firmware_version}, '
+                      f'mode {servo.mode}')
         for servo, failure in missing:
             message = (f'joint {servo.name!r}: servo id {servo.servo_id} did not answer '
                        f'{self.config.ping_retries} pings at {self.config.baud_rate} bps '
@@ -381,15 +381,37 @@ class Manager:
         if not self.active_servos():
             raise ManagerError('no configured servo answered')
 
+    def _take_model(self, servo: Servo, model_number: int) -> None:
+        """Choose the servo's table by the model and firmware it answered with, or refuse."""
+        where = f'joint {servo.name!r}: id {servo.servo_id}'
+        reason = models.unsupported_reason(model_number)
+        if reason:
+            raise ManagerError(f'{where}: {reason}')
+        wanted = servo.joint.model
+        if wanted is not None and wanted.number != model_number:
+            other = models.model_for(model_number)
+            raise ManagerError(f'{where} is a {other.name} (model {model_number}), but the '
+                               f'configuration says {servo.joint.name}.model {wanted.name}; '
+                               'refusing to drive it with another control table')
+        # The firmware picks the table where it differs (X330): read it from the seed's
+        # address, which every X-series table shares.
+        servo.model_number = model_number
+        servo.set_model(models.model_for(model_number))
+        servo.firmware_version = self._read(servo, 'firmware_version')
+        servo.set_model(models.model_for(model_number, servo.firmware_version))
+        problem = check_joint_against(servo.joint, servo.model)
+        if problem:
+            raise ManagerError(f'{where} is a {servo.model.name}: {problem}')
+
     def _apply_configuration(self, servo: Servo) -> Steps:
         """Mode, EEPROM (only where it differs), RAM registers, indirect map; torque stays off."""
         self._write(servo, 'torque_enable', 0)
         yield
-        wanted = {'operating_mode': ct.OPERATING_MODES[servo.mode]}
+        wanted = {'operating_mode': servo.model.modes[servo.mode]}
         wanted.update(servo.joint.register_dict())
         changed = []
         for name, value in wanted.items():
-            if ct.BY_NAME[name].area != 'eeprom':
+            if servo.model.item(name).area != 'eeprom':
                 continue
             current = self._read(servo, name)
             yield
@@ -406,17 +428,18 @@ class Manager:
     def _apply_ram(self, servo: Servo) -> Steps:
         """RAM configuration and the indirect map (lost at every reboot)."""
         for name, value in servo.joint.registers:
-            if ct.BY_NAME[name].area == 'ram':
+            if servo.model.item(name).area == 'ram':
                 self._write_verified(servo, name, value)
                 yield
         bus = self._io()
-        self._try(lambda: bus.write(servo.servo_id, BLOCK.indirect_map_address(),
-                                    BLOCK.indirect_map_bytes()))
+        block = servo.block
+        self._try(lambda: bus.write(servo.servo_id, block.indirect_map_address(),
+                                    block.indirect_map_bytes()))
         yield
-        for name in ('min_position_limit', 'max_position_limit', 'velocity_limit',
-                     'current_limit', 'pwm_limit'):
-            servo.limits[name] = self._read(servo, name)
-            yield
+        for name in LIMIT_REGISTERS:
+            if servo.model.has(name):
+                servo.limits[name] = self._read(servo, name)
+                yield
 
     def _set_return_delay(self) -> None:
         delays = [self._read(servo, 'return_delay_time') for servo in self.active_servos()]
@@ -429,7 +452,7 @@ class Manager:
                 servo.torque_wanted = self.config.torque_on_start
                 try:
                     _run(self._hold(servo))
-                except BusError as exc:
+                except (PortError, CommError) as exc:
                     raise ManagerError(f'activation failed: {exc}') from None
             self._clear_pending()
             self._need_full = True
@@ -441,7 +464,7 @@ class Manager:
         A mode change or a reboot sets goal_current to the servo's maximum; the joint gets
         back what it was last commanded, else what the configuration says, else current_limit.
         """
-        limit = servo.limits.get('current_limit', ct.BY_NAME['current_limit'].initial)
+        limit = servo.limits.get('current_limit', servo.model.item('current_limit').initial)
         wanted = servo.goal_raw.get('goal_current',
                                     servo.joint.register_dict().get('goal_current', limit))
         return max(-limit, min(limit, wanted))
@@ -474,7 +497,7 @@ class Manager:
                 servo.goal_raw['goal_current'] = current
                 yield
         else:
-            register = model.COMMAND_KINDS[_MODE_KIND[servo.mode]].register
+            register = servo.units.kinds[_MODE_KIND[servo.mode]].register
             # A mode change sets goal_current / goal_pwm to their limits: never enable with that.
             self._write(servo, register, 0)
             servo.goal_raw[register] = 0
@@ -484,7 +507,7 @@ class Manager:
             yield
             after = self._read(servo, 'present_position')
             yield
-            if abs(after - present) >= HALF_TURN:
+            if abs(after - present) >= servo.units.pulses_per_rev // 2:
                 self._keep_turns(servo, present, after)
                 if goal is not None:
                     goal = self._clamp_position(servo, after)
@@ -500,7 +523,7 @@ class Manager:
     def _into_one_turn(self, servo: Servo, present: int) -> Generator[None, None, int]:
         """Bring Present Position within one turn before torque on; return its new value."""
         homing = servo.homing_offset
-        if homing <= present < homing + TURN_PULSES:
+        if homing <= present < homing + servo.units.pulses_per_rev:
             return present
         bus = self._io()
         try:
@@ -511,7 +534,7 @@ class Manager:
         except StatusError:
             # CLEAR refused (the horn is moving, or an older firmware): torque on will do the
             # same re-initialisation, by the seed's formula.
-            after = model.reinit_position(present, homing)
+            after = servo.units.reinit_position(present, homing)
         self._keep_turns(servo, present, after)
         return after
 
@@ -520,7 +543,7 @@ class Manager:
         if servo.mode == 'position':
             servo.turn_offset = 0
             return
-        servo.turn_offset += model.kept_turns(before_raw, after_raw)
+        servo.turn_offset += servo.units.kept_turns(before_raw, after_raw)
 
     def _clamp_position(self, servo: Servo, raw: int) -> int:
         if servo.mode == 'position' and servo.limits:
@@ -557,7 +580,7 @@ class Manager:
                         continue
                     try:
                         self._write(servo, 'torque_enable', 0)
-                    except BusError as exc:
+                    except (PortError, CommError) as exc:
                         failures.append(f'joint {servo.name!r}: {exc}')
             finally:
                 self.should_stop = stop
@@ -602,7 +625,7 @@ class Manager:
         self.lock.acquire()
         try:
             bus = self._io()
-            if not self._id_list:
+            if not self._groups:
                 self.lock.release()
                 return False
             stamp = self._clock()
@@ -610,12 +633,13 @@ class Manager:
                 full = (stamp - self._last_full_s >= self.health_period_s
                         or self._need_full)
             if full:
-                length = BLOCK.size
+                length = BLOCK.size   # each group's own block size (_group_length)
             elif bus.dirty:
                 length = BLOCK.tagged_size
             else:
                 length = BLOCK.motion_size
-            pending = bus.begin_sync_read(BLOCK.read_address, length, self._id_list)
+            block, ids = self._groups[0]
+            pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids)
         except BaseException:
             self.lock.release()
             raise
@@ -644,6 +668,17 @@ class Manager:
             bus = self._io()
             result = bus.end_sync_read(reading.pending)
             received = time.monotonic()   # the bus dates requests on this clock
+            for block, ids in self._groups[1:]:
+                # Models whose state block lives elsewhere (an X330 before firmware 53): one
+                # more sync read each layout, dated on their own.
+                more = bus.sync_read(block.read_address, _group_length(block, reading.length),
+                                     ids)
+                got = time.monotonic()
+                result.data.update(more.data)
+                result.alerts.update(more.alerts)
+                result.dated.update({sid: (more.sent_s, got) for sid in ids})
+                result.dated.update(more.dated)
+                result.clean = result.clean and more.clean
             if (retry_until is not None and self.config.read_retries
                     and not result.clean):
                 self._retry_failed(result, reading.length, retry_until)
@@ -665,8 +700,9 @@ class Manager:
                 self._read_failed(servo, data)
                 continue
             size = len(data)   # a retry may have read more than the sync read
-            values = BLOCK.decoder(size)(data)
-            full = size == BLOCK.size
+            block = servo.block
+            values = block.decoder(size)(data)
+            full = size == block.size
             if not values[0] and not values[1] and not values[2] and not full:
                 # What a restarted servo returns (its indirect map is gone) - or a horn at
                 # exactly -pi, at rest: ask for the whole block, canary included, to know.
@@ -693,7 +729,7 @@ class Manager:
                 # Motion is good; the health part is not known yet (health_time 0).
                 servo.state = values[:BLOCK.MOTION_FIELDS] + (0,) + _NO_HEALTH
                 self._need_full = True
-            if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:
+            if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:  # type: ignore
                 self._need_full = True   # a new hardware error: decode it next cycle
             servo.state_time = stamp
             servo.fresh = True
@@ -724,13 +760,12 @@ class Manager:
         """
         bus = self._io()
         try:
-            data, sent_s = bus.read_dated(servo.servo_id, BLOCK.read_address, BLOCK.size)
-        except PortError:
-            raise
-        except BusError as exc:
+            data, sent_s = bus.read_dated(servo.servo_id, servo.block.read_address,
+                                          servo.block.size)
+        except CommError as exc:
             self._read_failed(servo, exc)
             return None
-        values = BLOCK.decode(data)
+        values = servo.block.decode(data)
         if values[IDX_CANARY] == 0:
             servo.fresh = False
             self._restarted(servo)
@@ -757,10 +792,10 @@ class Manager:
                     break
                 self.retries += 1
                 try:
-                    answer, sent_s = bus.read_dated(servo_id, BLOCK.read_address, length)
-                except PortError:
-                    raise
-                except BusError as exc:
+                    block = self._by_id[servo_id].block
+                    answer, sent_s = bus.read_dated(servo_id, block.read_address,
+                                                    _group_length(block, length))
+                except CommError as exc:
                     result.data[servo_id] = exc
                     continue
                 self.retry_successes += 1
@@ -795,7 +830,7 @@ class Manager:
         if servo.mode == 'position':
             servo.turn_offset = 0
         elif last_joint_pulses is not None:
-            servo.turn_offset = model.kept_turns(last_joint_pulses, present)
+            servo.turn_offset = servo.units.kept_turns(last_joint_pulses, present)
         for register in list(servo.goal_raw):
             if register != 'goal_current' or servo.mode != 'current_based_position':
                 del servo.goal_raw[register]
@@ -838,7 +873,8 @@ class Manager:
         bus = self._io()
         bus.ping(servo.servo_id)
         yield
-        values = BLOCK.decode(bus.read_fresh(servo.servo_id, BLOCK.read_address, BLOCK.size)[0])
+        block = servo.block
+        values = block.decode(bus.read_fresh(servo.servo_id, block.read_address, block.size)[0])
         yield
         servo.status = ''
         if values[IDX_CANARY] != 0:
@@ -901,7 +937,7 @@ class Manager:
                 servo.last_recovery_s = now
                 servo.recoveries += 1
                 self.recoveries += 1
-                errors = ', '.join(ct.decode_hardware_errors(state[IDX_HW_ERROR]))
+                errors = ', '.join(servo.model.decode_hardware_errors(state[IDX_HW_ERROR]))
                 self.warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
                           f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
                 self._start_task(servo, 'recover', self._reboot(servo))
@@ -948,7 +984,7 @@ class Manager:
             except PortError as exc:
                 self._lose_port(exc)
 
-    def _lose_port(self, exc: BusError) -> None:
+    def _lose_port(self, exc: PortError) -> None:
         if self.port_lost:
             return
         self.port_lost = True
@@ -985,7 +1021,7 @@ class Manager:
                 bus.port = self.port
             else:
                 bus.port.in_waiting   # raises while the simulated adapter is unplugged
-        except (BusError, OSError):
+        except (PortError, CommError, OSError):
             return False
         self.port_lost = False
         self.port_error = ''
@@ -1005,10 +1041,16 @@ class Manager:
                 pending, self._pending = self._pending, {}
             written = 0
             for register, goals in pending.items():
-                item = ct.BY_NAME[register]
-                fmt = struct.Struct('<i' if item.size == 4 else '<h')
-                self.bus.sync_write(item.address, item.size,
-                                    [(sid, fmt.pack(value)) for sid, value in goals.items()])
+                # One sync write per register: its address and size are every model's alike
+                # on the X series, grouped anyway so that a table that differs is honoured.
+                groups: Dict[Tuple[int, int, bool], List[Tuple[int, bytes]]] = {}
+                for sid, value in goals.items():
+                    item = self._by_id[sid].model.item(register)
+                    fmt = _PACKERS[item.size]
+                    groups.setdefault((item.address, item.size, item.signed), []).append(
+                        (sid, fmt.pack(value)))
+                for (address, size, _), data in groups.items():
+                    self.bus.sync_write(address, size, data)
                 written += len(goals)
             return written
 
@@ -1023,7 +1065,7 @@ class Manager:
                 if servo.timed_out or servo.mode in model.POSITION_MODES:
                     continue
                 if now - servo.last_command_s > timeout:
-                    register = model.COMMAND_KINDS[_MODE_KIND[servo.mode]].register
+                    register = servo.units.kinds[_MODE_KIND[servo.mode]].register
                     if servo.goal_raw.get(register, 0) != 0:
                         self._queue(servo, register, 0)
                         self.warn(f'joint {servo.name!r}: no {servo.mode} command for '
@@ -1042,7 +1084,7 @@ class Manager:
 
         Returns (goals, '') or (None, reason); nothing is queued here.
         """
-        if kind not in model.COMMAND_KINDS:
+        if kind not in model.MODE_KINDS:
             return None, f'unknown command kind {kind!r}'
         if len(names) == 0:
             return None, 'empty command: no joint names'
@@ -1053,7 +1095,6 @@ class Manager:
             return None, 'a joint is named twice'
         if self.port_lost:
             return None, f'the port is lost ({self.port_error}): no goal can be written'
-        command = model.COMMAND_KINDS[kind]
         goals = []
         for name, value in zip(names, values):
             servo = self.servos.get(name)
@@ -1068,6 +1109,11 @@ class Manager:
             if servo.name in self.tasks:
                 return None, (f'joint {name!r} is {servo.status or "busy"}: it takes goals '
                               'again once that is done')
+            command = servo.units.kinds.get(kind)
+            if command is None:
+                return None, (f'joint {name!r} is a {servo.model.name}, which has no '
+                              f'{model.GOAL_REGISTERS[kind]} register (no {kind} control); '
+                              f'its commands: {", ".join(sorted(servo.units.kinds))}')
             if kind not in model.MODE_COMMANDS[servo.mode]:
                 return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
                               'apply to it')
@@ -1087,7 +1133,7 @@ class Manager:
     def _clamp(self, servo: Servo, register: str, raw: int) -> int:
         if register == 'goal_position':
             return self._clamp_position(servo, raw)
-        bound = servo.limits[ct.BY_NAME[register].limit or '']
+        bound = servo.limits[servo.model.item(register).limit or '']
         return min(max(raw, -bound), bound)
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
@@ -1114,7 +1160,7 @@ class Manager:
             except PortError as exc:
                 self._lose_port(exc)
                 return Result(False, f'goals not written: {exc}')
-            except BusError as exc:
+            except CommError as exc:
                 return Result(False, f'goals not written: {exc}')
             return Result(True, f'{len(names)} {kind} goals written')
 
@@ -1167,9 +1213,7 @@ class Manager:
                             _run(self._hold(servo))
                         else:
                             self._write(servo, 'torque_enable', 0)
-                except BusError as exc:
-                    if isinstance(exc, PortError):
-                        raise
+                except CommError as exc:
                     return Result(False, f'torque {word} failed: {exc}')
                 return Result(True, f'torque {word} for {", ".join(s.name for s in servos)}')
             return self._request(f'torque {word}', action)
@@ -1194,6 +1238,11 @@ class Manager:
             servos, reason = self._servos_named(names)
             if servos is None:
                 return Result(False, reason)
+            for servo in servos:
+                if mode not in servo.model.modes:
+                    return Result(False, f'joint {servo.name!r} is a {servo.model.name}, which '
+                                  f'has no {mode} mode (its modes: '
+                                  f'{", ".join(servo.model.modes)})')
             done: List[str] = []
 
             def action() -> Result:
@@ -1201,9 +1250,7 @@ class Manager:
                     for servo in servos:
                         _run(self._switch_mode(servo, mode))
                         done.append(servo.name)
-                except BusError as exc:
-                    if isinstance(exc, PortError):
-                        raise
+                except CommError as exc:
                     for servo in servos:
                         self._resync_mode(servo)
                     return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
@@ -1222,7 +1269,7 @@ class Manager:
         yield
         before = self._read(servo, 'present_position')
         yield
-        self._write(servo, 'operating_mode', ct.OPERATING_MODES[mode])
+        self._write(servo, 'operating_mode', servo.model.modes[mode])
         yield
         servo.mode = mode
         servo.goal_raw.clear()
@@ -1257,7 +1304,7 @@ class Manager:
         try:
             raw = self._read(servo, 'operating_mode')
             servo.mode = model.MODE_NAMES.get(raw, servo.mode)
-        except BusError:
+        except (PortError, CommError):
             pass
 
     def reboot(self, names: Sequence[str], wait: Optional[Callable[[List[Task]], None]] = None
@@ -1313,7 +1360,7 @@ class Manager:
             servos, reason = self._servos_named([name]) if name else (None, 'no joint named')
             if servos is None:
                 return None, reason
-            item, reason = _register(register)
+            item, reason = _register(servos[0].model, register)
             if item is None:
                 return None, reason
             try:
@@ -1321,7 +1368,7 @@ class Manager:
             except PortError as exc:
                 self._lose_port(exc)
                 return None, str(exc)
-            except BusError as exc:
+            except CommError as exc:
                 return None, str(exc)
             return value, f'{name}.{item.name} (address {item.address}) = {value}'
 
@@ -1332,11 +1379,11 @@ class Manager:
             if servos is None:
                 return Result(False, reason)
             servo = servos[0]
-            item, reason = _register(register)
+            item, reason = _register(servo.model, register)
             if item is None:
                 return Result(False, reason)
             try:
-                model.writable_register(item.name, runtime=True)
+                model.writable_register(servo.model, item.name, runtime=True)
                 model.check_range(item, value)
             except ValueError as exc:
                 return Result(False, str(exc))
@@ -1345,7 +1392,7 @@ class Manager:
                 try:
                     context = dict(servo.limits)
                     context['homing_offset'] = servo.homing_offset
-                    for other in model.related_registers(item.name):
+                    for other in model.related_registers(servo.model, item.name):
                         if other not in context:
                             context[other] = self._read(servo, other)
                     model.check_register_set(context, item.name, value, servo.mode)
@@ -1356,9 +1403,7 @@ class Manager:
                     self._write(servo, item.name, value)
                 except ValueError as exc:
                     return Result(False, str(exc))
-                except BusError as exc:
-                    if isinstance(exc, PortError):
-                        raise
+                except CommError as exc:
                     return Result(False, str(exc))
                 if item.name in servo.limits:
                     servo.limits[item.name] = value
@@ -1371,15 +1416,26 @@ _MODE_KIND = {'velocity': 'velocity', 'current': 'current', 'pwm': 'pwm',
               'current_based_position': 'position'}
 
 
+def _group_length(block: model.StateBlock, length: int) -> int:
+    """Return the read length of a block: a whole-block read is as long as that model's."""
+    return block.size if length >= BLOCK.size else length
+
+
 def _run(steps: Steps) -> None:
     """Run an activity's steps to the end, at once (a synchronous caller)."""
     for _ in steps:
         pass
 
 
-def _register(key: str) -> Tuple[Optional[ct.Item], str]:
+def _register(table: models.Model, key: str) -> Tuple[Optional[ct.Item], str]:
     key = key.strip()
     try:
-        return ct.lookup(int(key) if key.isascii() and key.isdigit() else key), ''
+        return table.lookup(int(key) if key.isascii() and key.isdigit() else key), ''
     except KeyError as exc:
         return None, str(exc.args[0])
+
+
+_PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
+# Read at configure and kept: the bounds goals are clamped to (those the model has).
+LIMIT_REGISTERS = ('min_position_limit', 'max_position_limit', 'velocity_limit',
+                   'current_limit', 'pwm_limit')

@@ -1,112 +1,21 @@
 """
-The servo model: SI conversions, operating modes, the packed state block, bus timing.
+What the driver does with a model's table: modes, write rules, state block, tick, bus timing.
 
-Pure data and arithmetic over the seed's control table (control_table.py); no I/O, no ROS, no SDK.
-Every conversion comes as a pair (raw -> SI, SI -> raw) so the two can never drift apart.
+Pure data and arithmetic over the per-model tables of `models` (SI conversions are in
+models.units); no I/O, no ROS, no SDK.
 """
 
 from dataclasses import dataclass
-import math
 import struct
 from typing import Callable, Mapping, Optional
 
 from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.models import Model
 
-# Units of the seed (REP 103 on the ROS side).
-PULSES_PER_REV = 4096
-POSITION_ZERO_RAW = 2048                       # raw 2048 = 0 rad (the horn's centre)
-RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
-RAD_S_PER_VELOCITY_RAW = 0.229 * 2.0 * math.pi / 60.0   # 0.229 rpm per unit
-A_PER_CURRENT_RAW = 2.69e-3                    # 2.69 mA per unit
-PWM_RAW_FULL = 885                             # 885 = 100 % duty
-V_PER_VOLTAGE_RAW = 0.1
-# Seed datasheet: 4.1 N·m stall torque at 2.3 A (12 V).
-DEFAULT_TORQUE_CONSTANT_NM_PER_A = 4.1 / 2.3
-
-
-def position_to_rad(raw: int) -> float:
-    """Return a position register value (pulses) in radians."""
-    return (raw - POSITION_ZERO_RAW) * RAD_PER_PULSE
-
-
-def position_from_rad(rad: float) -> int:
-    """Return the position register value (pulses) nearest to an angle in radians."""
-    return int(round(rad / RAD_PER_PULSE)) + POSITION_ZERO_RAW
-
-
-def velocity_to_rad_s(raw: int) -> float:
-    """Return a velocity register value (0.229 rpm units) in rad/s."""
-    return raw * RAD_S_PER_VELOCITY_RAW
-
-
-def velocity_from_rad_s(rad_s: float) -> int:
-    """Return the velocity register value nearest to a velocity in rad/s."""
-    return int(round(rad_s / RAD_S_PER_VELOCITY_RAW))
-
-
-def current_to_a(raw: int) -> float:
-    """Return a current register value (2.69 mA units) in amperes."""
-    return raw * A_PER_CURRENT_RAW
-
-
-def current_from_a(amps: float) -> int:
-    """Return the current register value nearest to a current in amperes."""
-    return int(round(amps / A_PER_CURRENT_RAW))
-
-
-def pwm_to_ratio(raw: int) -> float:
-    """Return a PWM register value as a ratio of full output (-1..1)."""
-    return raw / PWM_RAW_FULL
-
-
-def pwm_from_ratio(ratio: float) -> int:
-    """Return the PWM register value nearest to a ratio of full output."""
-    return int(round(ratio * PWM_RAW_FULL))
-
-
-def voltage_to_v(raw: int) -> float:
-    """Return a voltage register value (0.1 V units) in volts."""
-    return raw * V_PER_VOLTAGE_RAW
-
-
-def voltage_from_v(volts: float) -> int:
-    """Return the voltage register value nearest to a voltage."""
-    return int(round(volts / V_PER_VOLTAGE_RAW))
-
-
-def reinit_position(present_raw: int, homing_offset: int) -> int:
-    """
-    Return Present Position after the servo re-initialises it (torque on, mode change, CLEAR).
-
-    The seed: it becomes the position within one turn (0..4095) plus the Homing Offset.
-    """
-    return (present_raw - homing_offset) % PULSES_PER_REV + homing_offset
-
-
-def kept_turns(before_raw: int, after_raw: int) -> int:
-    """Return the whole turns (in pulses) a re-initialisation took from before_raw."""
-    return int(round((before_raw - after_raw) / PULSES_PER_REV)) * PULSES_PER_REV
-
-
-@dataclass(frozen=True)
-class CommandKind:
-    """One kind of goal a joint accepts: its register, SI unit and conversions."""
-
-    name: str
-    register: str
-    unit: str
-    to_raw: Callable[[float], int]
-    to_si: Callable[[int], float]
-
-
-COMMAND_KINDS: dict[str, CommandKind] = {
-    'position': CommandKind('position', 'goal_position', 'rad', position_from_rad,
-                            position_to_rad),
-    'velocity': CommandKind('velocity', 'goal_velocity', 'rad/s', velocity_from_rad_s,
-                            velocity_to_rad_s),
-    'current': CommandKind('current', 'goal_current', 'A', current_from_a, current_to_a),
-    'pwm': CommandKind('pwm', 'goal_pwm', 'ratio', pwm_from_ratio, pwm_to_ratio),
-}
+# The kinds of goal, and the register each one writes (SPEC section 2, Topics).
+GOAL_REGISTERS: dict[str, str] = {'position': 'goal_position', 'velocity': 'goal_velocity',
+                                  'current': 'goal_current', 'pwm': 'goal_pwm'}
+MODE_KINDS = tuple(GOAL_REGISTERS)
 
 MODE_NAMES: dict[int, str] = {value: name for name, value in ct.OPERATING_MODES.items()}
 POSITION_MODES = frozenset({'position', 'extended_position', 'current_based_position'})
@@ -135,9 +44,14 @@ DRIVER_OWNED = frozenset(
     # status_return_level: the driver needs status packets, and the state block's restart
     # canary is that register.
     {'torque_enable', 'operating_mode', 'id', 'baud_rate', 'goal_position', 'goal_velocity',
-     'status_return_level'}
-    | {f'indirect_address_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)}
-    | {f'indirect_data_{n}' for n in range(1, ct.INDIRECT_COUNT + 1)})
+     'status_return_level'})
+# The indirect map is the driver's too (the state block), whatever a model's count of them.
+DRIVER_OWNED_PREFIXES = ('indirect_address_', 'indirect_data_')
+
+
+def driver_owned(name: str) -> bool:
+    """Return whether the driver manages this register itself."""
+    return name in DRIVER_OWNED or name.startswith(DRIVER_OWNED_PREFIXES)
 
 
 # Registers a configuration or write_register may never set, and why.
@@ -147,17 +61,17 @@ REFUSED_REGISTERS: dict[str, str] = {
 }
 
 
-def writable_register(name: str, runtime: bool = False) -> ct.Item:
+def writable_register(model: Model, name: str, runtime: bool = False) -> ct.Item:
     """Return the item a configuration (or write_register) may write, or raise ValueError."""
-    try:
-        item = ct.BY_NAME[name]
-    except KeyError:
-        raise ValueError(f'unknown register {name!r} (not in the control table)') from None
+    if not model.has(name):
+        raise ValueError(f'unknown register {name!r} (not in the control table of '
+                         f'{model.label})')
+    item = model.item(name)
     if item.access != 'RW':
         raise ValueError(f'register {name!r} is read-only')
     if name in REFUSED_REGISTERS:
         raise ValueError(f'register {name!r} cannot be written: {REFUSED_REGISTERS[name]}')
-    if name in DRIVER_OWNED:
+    if driver_owned(name):
         if runtime:
             raise ValueError(f'{name} is managed by the driver: use the set_torque / '
                              'set_operating_mode / command interfaces')
@@ -174,10 +88,10 @@ _ORDERED = (('min_position_limit', 'max_position_limit'),
             ('min_voltage_limit', 'max_voltage_limit'))
 
 
-def related_registers(name: str) -> tuple[str, ...]:
+def related_registers(model: Model, name: str) -> tuple[str, ...]:
     """Return the registers whose values check_register_set needs to judge a write of name."""
     related: list[str] = []
-    if name in _BOUNDED_BY:
+    if name in _BOUNDED_BY and model.has(_BOUNDED_BY[name]):
         related.append(_BOUNDED_BY[name])
     for low, high in _ORDERED:
         if name == low:
@@ -192,12 +106,15 @@ def check_register_set(values: Mapping[str, int], name: str, value: int, mode: s
     Raise ValueError when setting name to value contradicts the servo's other registers.
 
     values holds the current values of (at least) related_registers(name); mode is the joint's
-    operating mode. The one rule book for parameter files and write_register.
+    operating mode. The one rule book for parameter files and write_register. A bound the
+    model does not have (no acceleration_limit outside the seed's models) is not checked.
     """
     bound = _BOUNDED_BY.get(name)
-    if bound is not None and abs(value) > values[bound]:
+    if bound is not None and bound in values and abs(value) > values[bound]:
         raise ValueError(f'{name} {value} exceeds {bound} ({values[bound]})')
     for low, high in _ORDERED:
+        if low not in values or high not in values:
+            continue
         if name == low and value > values[high]:
             raise ValueError(f'{low} {value} is above {high} ({values[high]})')
         if name == high and value < values[low]:
@@ -225,18 +142,21 @@ class BlockField:
     size: int
 
 
-class StateBlock:
+class BlockShape:
     """
-    The state of one servo, packed through indirect addresses.
+    The state of one servo, packed through indirect addresses: fields, sizes, decoders.
 
     The registers below are scattered over the table (64, 68, 70, 120..146); mapping them to
     consecutive indirect data bytes lets one sync read fetch all of them from every servo.
-    The block has three parts. The motion part (position, velocity, current: the same 10 bytes
+    The block has three parts. The motion part (position, velocity, effort: the same 10 bytes
     any control loop reads) is read every cycle. The Realtime Tick follows it: the cycle reads it
     too (the tagged read) while the bus is suspicious, to date every sample (TickClock). The
     health part after it (a canary, pwm, voltage, temperature, moving, errors, torque) comes
     only when diagnostics or servo_states need it, by reading the whole block in that cycle's one
     sync read instead.
+
+    Effort is Present Current, or Present Load on the models that sense no current (same
+    address and size): the block is laid out per model, its positions are the same for all.
 
     The canary maps status_return_level, which the driver never sets to 0: after a reboot or a
     power cut the indirect addresses return to their defaults and the whole block reads 0. A
@@ -247,7 +167,7 @@ class StateBlock:
     FIELDS: tuple[tuple[str, str], ...] = (
         ('present_position', 'i'),
         ('present_velocity', 'i'),
-        ('present_current', 'h'),
+        ('effort', 'h'),              # present_current or present_load
         # the tag
         ('realtime_tick', 'H'),
         # health part
@@ -262,7 +182,6 @@ class StateBlock:
     )
     MOTION_FIELDS = 3
     TAGGED_FIELDS = 4
-    FIRST_INDIRECT = 1
 
     def __init__(self) -> None:
         self.names: tuple[str, ...] = tuple(name for name, _ in self.FIELDS)
@@ -274,34 +193,9 @@ class StateBlock:
         self.tagged_struct = struct.Struct(
             '<' + ''.join(code for _, code in self.FIELDS[:self.TAGGED_FIELDS]))
         self.tagged_size: int = self.tagged_struct.size
-        fields = []
-        offset = 0
-        for name, _ in self.FIELDS:
-            item = ct.BY_NAME[name]
-            fields.append(BlockField(name, offset, item.size))
-            offset += item.size
-        self.fields: tuple[BlockField, ...] = tuple(fields)
-        assert offset == self.size, 'struct codes disagree with the control table sizes'
         self.index: dict[str, int] = {name: i for i, name in enumerate(self.names)}
-        self.read_address: int = ct.indirect_data_address(self.FIRST_INDIRECT)
         self.canary_index: int = self.index['status_return_level']
         self.tick_index: int = self.index['realtime_tick']
-
-    def indirect_map(self) -> list[int]:
-        """Return the target address of each indirect byte, in order (one per block byte)."""
-        targets: list[int] = []
-        for field in self.fields:
-            base = ct.BY_NAME[field.name].address
-            targets.extend(base + k for k in range(field.size))
-        return targets
-
-    def indirect_map_bytes(self) -> bytes:
-        """Return the data of one WRITE to indirect_address_1.. that sets up the whole block."""
-        return b''.join(struct.pack('<H', address) for address in self.indirect_map())
-
-    def indirect_map_address(self) -> int:
-        """Return the address of the first indirect address register the block uses."""
-        return ct.indirect_address_address(self.FIRST_INDIRECT)
 
     def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
         """Return the block's raw values, in FIELDS order."""
@@ -330,7 +224,97 @@ class StateBlock:
         return values[self.canary_index] == 0
 
 
-STATE_BLOCK = StateBlock()
+# The same for every model: the cycle decodes every servo's block with it.
+BLOCK_SHAPE = BlockShape()
+
+
+class StateBlock(BlockShape):
+    """
+    Where one model's state block lives: its indirect entries and the registers behind.
+
+    A table with fewer indirect entries than the block has bytes (the X330 before firmware
+    53: 20) leaves Present PWM out (`compact`); its values are still decoded to the shape's
+    positions, with 0 where PWM would be, and `has_pwm` says not to believe that 0.
+    """
+
+    # What a table too small for the whole block leaves out.
+    COMPACT_DROPS = ('present_pwm',)
+
+    def __init__(self, model: Model, effort_register: str) -> None:
+        super().__init__()
+        self.model = model
+        self.effort_register = effort_register
+        self.compact = len(model.indirect) < self.size
+        if self.compact:
+            kept = tuple(pair for pair in self.FIELDS if pair[0] not in self.COMPACT_DROPS)
+            self._dropped = tuple(self.index[name] for name in self.COMPACT_DROPS)
+            self.struct = struct.Struct('<' + ''.join(code for _, code in kept))
+            self.size = self.struct.size
+            names: tuple[str, ...] = tuple(name for name, _ in kept)
+        else:
+            names = self.names
+        self.has_pwm = not self.compact
+        fields = []
+        offset = 0
+        for name in names:
+            item = model.item(self.register(name))
+            fields.append(BlockField(item.name, offset, item.size))
+            offset += item.size
+        self.fields: tuple[BlockField, ...] = tuple(fields)
+        assert offset == self.size, 'struct codes disagree with the control table sizes'
+        if len(model.indirect) < self.size:
+            raise ValueError(f'{model.label} has {len(model.indirect)} indirect entries, '
+                             f'the state block needs {self.size}')
+        self.read_address: int = model.indirect[0][1]
+        self.map_address: int = model.indirect[0][0]
+        # The block's data bytes must be consecutive (one read): true of every bank's start.
+        data = [pair[1] for pair in model.indirect[:self.size]]
+        if data != list(range(data[0], data[0] + self.size)):
+            raise ValueError(f'{model.label}: the first {self.size} indirect data bytes are '
+                             'not consecutive')
+
+    def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
+        """Return the block's raw values, in the positions of FIELDS (0 for left-out ones)."""
+        values = self.struct.unpack_from(data, offset)
+        if not self.compact:
+            return values
+        whole = list(values)
+        for index in self._dropped:
+            whole.insert(index, 0)
+        return tuple(whole)
+
+    def register(self, field_name: str) -> str:
+        """Return the register behind a block field (effort: current or load)."""
+        return self.effort_register if field_name == 'effort' else field_name
+
+    def indirect_map(self) -> list[int]:
+        """Return the target address of each indirect byte, in order (one per block byte)."""
+        targets: list[int] = []
+        for field in self.fields:
+            base = self.model.item(field.name).address
+            targets.extend(base + k for k in range(field.size))
+        return targets
+
+    def indirect_map_bytes(self) -> bytes:
+        """Return the data of one WRITE to indirect_address_1.. that sets up the whole block."""
+        return b''.join(struct.pack('<H', address) for address in self.indirect_map())
+
+    def indirect_map_address(self) -> int:
+        """Return the address of the first indirect address register the block uses."""
+        return self.map_address
+
+
+_BLOCKS: dict[tuple[int, int, str], StateBlock] = {}
+
+
+def state_block(model: Model, effort_register: str) -> StateBlock:
+    """Return the (shared) state block of a model."""
+    key = (model.number, model.min_firmware, effort_register)
+    block = _BLOCKS.get(key)
+    if block is None:
+        block = _BLOCKS[key] = StateBlock(model, effort_register)
+    return block
+
 
 TICK_PERIOD_MS = 32768   # Realtime Tick counts milliseconds and wraps after 32767
 
@@ -434,7 +418,7 @@ def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
     Each servo waits its Return Delay Time (2 us per unit) before answering; the USB adapter's
     latency timer holds the replies once per cycle before the host sees them.
     """
-    length = STATE_BLOCK.motion_size if read_length is None else read_length
+    length = BLOCK_SHAPE.motion_size if read_length is None else read_length
     total = sync_read_bytes(n_servos, length) + sync_write_bytes(n_servos, write_length)
     return BusBudget(
         bytes_per_cycle=total,

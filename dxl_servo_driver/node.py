@@ -12,15 +12,15 @@ import sys
 import threading
 import time
 import traceback
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver import control_table as ct
-from dxl_servo_driver import model
+from dxl_servo_driver.errors import Interrupted
 from dxl_servo_driver.manager import (
-    IDX_CURRENT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
-    IDX_TEMPERATURE, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Interrupted, Manager, ManagerError,
+    IDX_EFFORT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
+    IDX_TEMPERATURE, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Manager, ManagerError,
     Servo)
 from dxl_servo_driver.tasks import Task
 from dxl_servo_driver_msgs.msg import JointCommand, ServoState, ServoStateArray
@@ -191,11 +191,9 @@ class DriverNode(LifecycleNode):
         self._last_cycle_s = 0.0
         self.cycle_errors = 0
         self.cycle_failure: Optional[BaseException] = None
-        assert (IDX_POSITION, IDX_VELOCITY, IDX_CURRENT) == (0, 1, 2)
-        # (servo, joint name, N*m per current unit) per joint, in joint_states order.
-        self._joint_table = [
-            (servo, servo.name, model.A_PER_CURRENT_RAW * servo.joint.torque_constant_nm_per_a)
-            for servo in self.manager.order]
+        assert (IDX_POSITION, IDX_VELOCITY, IDX_EFFORT) == (0, 1, 2)
+        self._joint_table: List[Tuple[Servo, str, int, float, float, float]] = []
+        self._build_joint_table()
         self._all_names = [servo.name for servo in self.manager.order]
         self.joint_states_pub = self.create_publisher(JointState, 'joint_states', 10)
         self.servo_states_pub = self.create_publisher(ServoStateArray, '~/servo_states', 10)
@@ -244,12 +242,20 @@ class DriverNode(LifecycleNode):
                 ('operating_mode', joint.operating_mode,
                  f'Operating mode at start: one of {", ".join(ct.OPERATING_MODES)}.',
                  ParameterType.PARAMETER_STRING),
-                ('torque_constant', joint.torque_constant_nm_per_a,
-                 'Effort = current x this [N*m/A] (seed: 4.1 N*m at 2.3 A).',
-                 ParameterType.PARAMETER_DOUBLE),
             ]
+            if joint.torque_constant_nm_per_a is not None:
+                entries.append(
+                    ('torque_constant', joint.torque_constant_nm_per_a,
+                     "Effort = current x this [N*m/A]; unset: the model's datasheet stall "
+                     'torque / stall current (seed: 4.1 N*m at 2.3 A).',
+                     ParameterType.PARAMETER_DOUBLE))
+            if joint.model is not None:
+                entries.append(
+                    ('model', joint.model.name,
+                     'The model the servo must be (name or number); another is refused.',
+                     ParameterType.PARAMETER_STRING))
             for register, value in joint.registers:
-                item = ct.BY_NAME[register]
+                item = cfg.describe_register(joint, register)
                 entries.append((f'registers.{register}', value,
                                 f'{item.description} at address {item.address}, raw '
                                 f'[{item.unit or "count"}], {item.minimum}..{item.maximum}, '
@@ -347,6 +353,7 @@ class DriverNode(LifecycleNode):
             self.get_logger().warning('configure interrupted: stop requested')
             self.manager.close()
             return TransitionCallbackReturn.FAILURE
+        self._build_joint_table()
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -599,6 +606,14 @@ class DriverNode(LifecycleNode):
             self._last_state_s = now
             self.servo_states_pub.publish(self._servo_states(stamp))
 
+    def _build_joint_table(self) -> None:
+        # The conversions of models.units, inlined with per-joint constants (joint_states runs
+        # every cycle); rebuilt once the servos said which model they are.
+        self._joint_table = [
+            (servo, servo.name, servo.units.zero_raw, servo.units.rad_per_pulse,
+             servo.units.rad_s_per_velocity_raw, servo.units.effort_nm_per_raw)
+            for servo in self.manager.order]
+
     def _publish_joint_states(self, stamp: Any) -> None:
         msg = self._joint_state
         msg.header.stamp = stamp
@@ -606,11 +621,7 @@ class DriverNode(LifecycleNode):
         positions = []
         velocities = []
         efforts = []
-        # The conversions of model.py, inlined with per-joint constants: this runs every cycle.
-        rad_per_pulse = model.RAD_PER_PULSE
-        zero = model.POSITION_ZERO_RAW
-        rad_s = model.RAD_S_PER_VELOCITY_RAW
-        for servo, name, nm_per_raw in self._joint_table:
+        for servo, name, zero, rad_per_pulse, rad_s, nm_per_raw in self._joint_table:
             state = servo.state
             if not servo.fresh or state is None:
                 continue   # never a stale or invented value
@@ -643,20 +654,24 @@ class DriverNode(LifecycleNode):
                          'temperature'):
                 setattr(msg, attr, math.nan)
             return msg
-        msg.position = model.position_to_rad(state[IDX_POSITION] + servo.turn_offset)
-        msg.velocity = model.velocity_to_rad_s(state[IDX_VELOCITY])
-        msg.current = model.current_to_a(state[IDX_CURRENT])
+        units = servo.units
+        msg.position = units.position_to_rad(state[IDX_POSITION] + servo.turn_offset)
+        msg.velocity = units.velocity_to_rad_s(state[IDX_VELOCITY])
+        # NaN on a model that senses no current (its effort comes from Present Load).
+        msg.current = (units.current_to_a(state[IDX_EFFORT])
+                       if units.effort_register == 'present_current' else math.nan)
         if not servo.health_time:
             msg.pwm = msg.input_voltage = msg.temperature = math.nan
             return msg
         msg.torque_enabled = bool(state[IDX_TORQUE])
-        msg.pwm = model.pwm_to_ratio(state[IDX_PWM])
-        msg.input_voltage = model.voltage_to_v(state[IDX_VOLTAGE])
+        # NaN where the model's state block has no room for it (an X330 before firmware 53).
+        msg.pwm = units.pwm_to_ratio(state[IDX_PWM]) if servo.block.has_pwm else math.nan
+        msg.input_voltage = units.voltage_to_v(state[IDX_VOLTAGE])
         msg.temperature = float(state[IDX_TEMPERATURE])
         msg.moving = bool(state[IDX_MOVING])
         msg.moving_status = state[IDX_MOVING_STATUS]
         msg.hardware_error_status = state[IDX_HW_ERROR]
-        msg.hardware_errors = ct.decode_hardware_errors(state[IDX_HW_ERROR])
+        msg.hardware_errors = servo.model.decode_hardware_errors(state[IDX_HW_ERROR])
         return msg
 
     def _servo_states(self, stamp: Any) -> ServoStateArray:
@@ -742,15 +757,18 @@ class DriverNode(LifecycleNode):
         elif not servo.fresh:
             level = DiagnosticStatus.ERROR
             problems.append('not answering')
-        values = {'id': servo.servo_id, 'model_number': servo.model_number,
+        values = {'id': servo.servo_id, 'model': servo.model.name,
+                  'model_number': servo.model_number,
+                  'torque_constant_nm_per_a': f'{servo.units.torque_constant_nm_per_a:.4g}',
+                  'effort_from': servo.units.effort_register,
                   'firmware_version': servo.firmware_version, 'operating_mode': servo.mode,
                   'comm_errors': servo.comm_errors, 'stale_samples_refused': servo.stale_refused,
                   'restarts': servo.restarts, 'recoveries': servo.recoveries,
                   'turn_offset_pulses': servo.turn_offset}
         if state is not None and servo.health_time:
             temperature = float(state[IDX_TEMPERATURE])
-            voltage = model.voltage_to_v(state[IDX_VOLTAGE])
-            errors = ct.decode_hardware_errors(state[IDX_HW_ERROR])
+            voltage = servo.units.voltage_to_v(state[IDX_VOLTAGE])
+            errors = servo.model.decode_hardware_errors(state[IDX_HW_ERROR])
             values.update({'temperature_c': temperature, 'input_voltage_v': f'{voltage:.1f}',
                            'torque_enabled': bool(state[IDX_TORQUE]),
                            'hardware_errors': ', '.join(errors) or 'none'})

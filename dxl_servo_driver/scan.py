@@ -24,7 +24,10 @@ from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set,
 
 from dxl_servo_driver import config
 from dxl_servo_driver import control_table as ct
-from dxl_servo_driver.bus import Bus, BusError, CorruptReply, open_port, PortError
+from dxl_servo_driver import models
+from dxl_servo_driver.bus import Bus, open_port
+from dxl_servo_driver.errors import CommError, CorruptReply, PortError
+from dxl_servo_driver.models.names import OTHER_MODELS
 
 EXIT_OK = 0
 EXIT_NOT_FOUND = 1
@@ -36,7 +39,6 @@ EXIT_INTERRUPTED = 130
 # Most common first: 57600 is the factory default, 1 Mbps what most robot arms are set to; 9600
 # last, as its broadcast PING waits longest (the SDK waits for 252 replies' worth of bytes).
 PREFERRED_BAUDS = (57600, 1_000_000)
-MODEL_NAMES: Dict[int, str] = {ct.MODEL_NUMBER: 'XM430-class'}
 UNKNOWN_MODEL = 'unknown model'
 MAX_ID = 252
 # A scan is not time-critical: wait generously for each reply beyond its wire time (the USB
@@ -60,8 +62,11 @@ def default_bauds() -> List[int]:
 
 
 def model_name(model_number: int) -> str:
-    """Return the name of a model number, or 'unknown model'."""
-    return MODEL_NAMES.get(model_number, UNKNOWN_MODEL)
+    """Return a model number's name (XL430-W250; unsupported ones say so), or 'unknown model'."""
+    if model_number in models.SUPPORTED:
+        return models.model_for(model_number).name
+    other = OTHER_MODELS.get(model_number)
+    return f'{other[0]}, not supported' if other is not None else UNKNOWN_MODEL
 
 
 def mode_name(mode_raw: int) -> Optional[str]:
@@ -86,7 +91,12 @@ class FoundServo:
     @property
     def known_model(self) -> bool:
         """Return whether the driver knows this model's control table."""
-        return self.model_number in MODEL_NAMES
+        return self.model_number in models.SUPPORTED
+
+    @property
+    def table(self) -> models.Model:
+        """Return the control table of a known model (for its firmware, when read)."""
+        return models.model_for(self.model_number, self.firmware_version)
 
     @property
     def operating_mode(self) -> Optional[str]:
@@ -98,9 +108,9 @@ class FoundServo:
     @property
     def hardware_errors(self) -> Optional[List[str]]:
         """Return the decoded hardware errors, None if unread."""
-        if self.hardware_error_status is None:
+        if self.hardware_error_status is None or not self.known_model:
             return None
-        return ct.decode_hardware_errors(self.hardware_error_status)
+        return self.table.decode_hardware_errors(self.hardware_error_status)
 
 
 def describe(servo: FoundServo) -> str:
@@ -140,15 +150,12 @@ class ScanResult:
     warnings: List[str]
 
 
-def _read_register(bus: Bus, servo_id: int, name: str) -> Optional[int]:
+def _read_register(bus: Bus, servo_id: int, item: ct.Item) -> Optional[int]:
     # A reply may come late on a busy machine or a noisy bus: a few tries before giving up.
-    item = ct.BY_NAME[name]
     for _ in range(READ_ATTEMPTS):
         try:
             return bus.read_item(servo_id, item)
-        except PortError:
-            raise
-        except BusError:
+        except CommError:
             continue
     return None
 
@@ -156,11 +163,12 @@ def _read_register(bus: Bus, servo_id: int, name: str) -> Optional[int]:
 def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int) -> FoundServo:
     # Firmware Version (6) is at the same address on every Protocol 2.0 servo; the others are
     # read only from a model whose control table is known.
-    firmware = _read_register(bus, servo_id, 'firmware_version')
-    if model_number not in MODEL_NAMES:
+    firmware = _read_register(bus, servo_id, ct.BY_NAME['firmware_version'])
+    if model_number not in models.SUPPORTED:
         return FoundServo(servo_id, baud_bps, model_number, firmware)
-    mode = _read_register(bus, servo_id, 'operating_mode')
-    errors = _read_register(bus, servo_id, 'hardware_error_status')
+    table = models.model_for(model_number, firmware)
+    mode = _read_register(bus, servo_id, table.item('operating_mode'))
+    errors = _read_register(bus, servo_id, table.item('hardware_error_status'))
     return FoundServo(servo_id, baud_bps, model_number, firmware, mode, errors)
 
 
@@ -169,20 +177,17 @@ def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str]) -> Dict[int, in
     for servo_id in ids:
         try:
             found[servo_id] = bus.ping(servo_id)
-        except PortError:
-            raise
         except CorruptReply:
             warnings.append(f'id {servo_id} at {bus.baud_bps} bps: garbled replies (two servos '
                             'with the same id, or a noisy line?)')
-        except BusError:
+        except CommError:
             continue
     return found
 
 
 def set_baud(bus: Bus, baud_bps: int) -> None:
     """Switch the port and the bus's timing to another baud rate."""
-    bus.port.baudrate = baud_bps
-    bus.baud_bps = baud_bps
+    bus.set_baud(baud_bps)
 
 
 def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None,
@@ -201,16 +206,14 @@ def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None
         progress(f'scanning {baud_bps} bps ({how}) ...')
         try:
             set_baud(bus, baud_bps)
-        except (OSError, ValueError) as exc:  # pyserial: SerialException is an OSError
+        except (PortError, ValueError) as exc:  # pyserial: SerialException, ValueError
             result.warnings.append(f'the adapter refused {baud_bps} bps ({exc}); skipped')
             continue
         result.bauds_tried.append(baud_bps)
         if ids is None:
             try:
                 models = bus.broadcast_ping()
-            except PortError:
-                raise
-            except BusError as exc:
+            except CommError as exc:
                 # Colliding replies (two servos with one id) spoil the whole broadcast.
                 progress(f'  {baud_bps} bps: {exc}; pinging ids 0..{MAX_ID} one by one ...')
                 models = _ping_ids(bus, range(MAX_ID + 1), result.warnings)
@@ -262,8 +265,8 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
                             f'{baud_bps}: set its baud_rate register to {raw} ({baud_bps} bps) '
                             'or run a second node at its baud')
         elif not servo.known_model:
-            left_out.append(f'id {servo.servo_id}: model {servo.model_number} is not one the '
-                            'driver knows')
+            left_out.append(f'id {servo.servo_id}: '
+                            f'{models.unsupported_reason(servo.model_number)}')
         elif servo.operating_mode is None:
             left_out.append(f'id {servo.servo_id}: operating mode not read or not valid')
         elif servo.servo_id in ids:
@@ -273,6 +276,7 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
             ids.add(servo.servo_id)
             joints.append(joint)
             params[f'{joint}.id'] = servo.servo_id
+            params[f'{joint}.model'] = servo.table.name
             params[f'{joint}.operating_mode'] = servo.operating_mode
     if not joints:
         raise ValueError('no servo the node could drive (' + '; '.join(left_out) + ')')
@@ -303,6 +307,7 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
     for joint in params['joints']:
         lines.append(f'    {joint}:')
         lines.append(f'      id: {params[joint + ".id"]}')
+        lines.append(f'      model: {params[joint + ".model"]}')
         lines.append(f'      operating_mode: {params[joint + ".operating_mode"]}')
     return '\n'.join(lines) + '\n'
 

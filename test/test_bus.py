@@ -5,14 +5,16 @@ import time
 from typing import Tuple
 
 from dxl_servo_driver import model
-from dxl_servo_driver.bus import Bus, CommTimeout, CorruptReply
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.errors import CommTimeout, CorruptReply
+from dxl_servo_driver.models import model_for
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest
 
 BAUD = 1_000_000
-BLOCK = model.STATE_BLOCK
+BLOCK = model.state_block(model_for(1030), 'present_current')
 IDS = (1, 2, 3)
 
 

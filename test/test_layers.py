@@ -1,4 +1,9 @@
-"""The layering of STYLE.md: only the node imports rclpy, only the bus imports the SDK/serial."""
+"""
+The layering of STYLE.md: ros -> driver -> bus/transport -> protocol/models.
+
+Nothing but the transport registry reaches the simulator; only the node imports rclpy, only
+the bus the serial port.
+"""
 
 import ast
 import pathlib
@@ -42,3 +47,64 @@ def test_the_simulator_and_model_import_neither() -> None:
                                                         PACKAGE / 'protocol.py']:
         modules = imported_modules(path)
         assert not modules & (set(ROS_MODULES) | set(HARDWARE_MODULES)), path.name
+
+
+# Each module's layer: a module may import the package's modules of its own layer or below.
+LAYERS = {
+    'node.py': 3, 'scan.py': 3,
+    'manager.py': 2, 'tasks.py': 2, 'config.py': 2, 'model.py': 2, 'transports.py': 2,
+    'bus.py': 1,
+    'protocol.py': 0, 'control_table.py': 0, 'errors.py': 0, 'models': 0,
+}
+
+
+def layer_of(module: str) -> int:
+    """Return the layer of a dxl_servo_driver module name (sim: -1, outside the order)."""
+    parts = module.split('.')
+    if parts[0] != 'dxl_servo_driver' or len(parts) < 2:
+        raise ValueError(module)
+    if parts[1] == 'sim':
+        return -1
+    key = parts[1] if parts[1] in LAYERS else parts[1] + '.py'
+    return LAYERS[key]
+
+
+def package_imports(path: pathlib.Path) -> set:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            if node.module == 'dxl_servo_driver':
+                names.update(f'dxl_servo_driver.{alias.name}' for alias in node.names)
+            else:
+                names.add(node.module)
+    return {name for name in names if name.startswith('dxl_servo_driver.')}
+
+
+def test_every_module_imports_only_its_layer_or_below() -> None:
+    checked = 0
+    for path in sorted(PACKAGE.rglob('*.py')):
+        relative = path.relative_to(PACKAGE).as_posix()
+        top = relative.split('/')[0]
+        if top == 'sim' or relative == '__init__.py':
+            continue
+        own = LAYERS[top]
+        for module in package_imports(path):
+            assert layer_of(module) != -1, f'{relative} imports the simulator ({module})'
+            assert layer_of(module) <= own, f'{relative} (layer {own}) imports {module}'
+        checked += 1
+    assert checked >= 12
+
+
+def test_only_the_transport_registry_reaches_the_simulator() -> None:
+    for path in sorted(PACKAGE.rglob('*.py')):
+        relative = path.relative_to(PACKAGE).as_posix()
+        if relative.startswith('sim/') or relative == 'transports.py':
+            continue
+        assert 'dxl_servo_driver.sim' not in path.read_text(), relative
+    # The simulator itself builds on the bottom layer only (tables, models, packets).
+    for path in (PACKAGE / 'sim').glob('*.py'):
+        for module in package_imports(path):
+            assert layer_of(module) in (-1, 0), f'sim/{path.name} imports {module}'

@@ -11,14 +11,21 @@ from typing import Any, Callable, Dict, List, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
-from dxl_servo_driver.bus import PortError
 from dxl_servo_driver.config import DriverConfig, validate
+from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.manager import Manager, ManagerError
+from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet, StreamParser
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest
+
+SEED = units_for(model_for(1030))
+SEED_BLOCK = model.state_block(model_for(1030), 'present_current')
+# The block's fields by register name (effort is present_current on the seed's model).
+STATE_NAMES = tuple(SEED_BLOCK.register(name) for name in SEED_BLOCK.names)
 
 BAUD = 1_000_000
 
@@ -205,7 +212,7 @@ def test_one_sync_read_per_cycle_gives_the_simulator_state(active: Tuple[Rig, Ma
     assert [p.instruction for p in rig.tap.packets] == [Instruction.SYNC_READ]
     for servo in manager.order:
         assert servo.fresh
-        state = dict(zip(model.STATE_BLOCK.names, servo.state))
+        state = dict(zip(STATE_NAMES, servo.state))
         for name in ('present_position', 'present_input_voltage', 'present_temperature',
                      'torque_enable', 'hardware_error_status'):
             assert state[name] == rig.reg(servo.servo_id, name), name
@@ -220,7 +227,7 @@ def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
     for _ in range(3):
         manager.read_states()
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
-    assert lengths == [model.STATE_BLOCK.motion_size] * 3
+    assert lengths == [SEED_BLOCK.motion_size] * 3
     assert all(s.fresh for s in manager.order)
     # A hardware error raises the alert bit in every status: the next cycle reads it all.
     rig.sim.inject_error(2, 'overheat')
@@ -228,11 +235,11 @@ def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
     manager.read_states()
     manager.read_states()
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
-    assert lengths == [model.STATE_BLOCK.motion_size, model.STATE_BLOCK.size]
-    state = dict(zip(model.STATE_BLOCK.names, manager.servos['wheel'].state))
+    assert lengths == [SEED_BLOCK.motion_size, SEED_BLOCK.size]
+    state = dict(zip(STATE_NAMES, manager.servos['wheel'].state))
     assert state['hardware_error_status'] == rig.reg(2, 'hardware_error_status') == 0x04
     manager.read_states(full=True)
-    assert rig.tap.packets[-1].params[2] == model.STATE_BLOCK.size
+    assert rig.tap.packets[-1].params[2] == SEED_BLOCK.size
 
 
 def test_goals_go_out_in_one_sync_write_per_register(active: Tuple[Rig, Manager]) -> None:
@@ -246,9 +253,9 @@ def test_goals_go_out_in_one_sync_write_per_register(active: Tuple[Rig, Manager]
     assert manager.write_pending() == 3
     sync = [p for p in rig.tap.packets if p.instruction == Instruction.SYNC_WRITE]
     assert len(sync) == 3 and len(rig.tap.packets) == 3
-    assert rig.reg(1, 'goal_position') == model.position_from_rad(0.25)
-    assert rig.reg(2, 'goal_velocity') == model.velocity_from_rad_s(1.0)
-    assert rig.reg(3, 'goal_current') == model.current_from_a(0.2)
+    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.25)
+    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(1.0)
+    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.2)
     assert manager.write_pending() == 0     # nothing pending: nothing sent
 
 
@@ -385,7 +392,7 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
     assert rig.reg(1, 'torque_enable') == 1
     # It holds where it is: the goal it had before its restart is not replayed.
     assert abs(rig.reg(1, 'goal_position') - rig.reg(1, 'present_position')) <= 2
-    assert abs(rig.reg(1, 'goal_position') - model.position_from_rad(0.3)) > 50
+    assert abs(rig.reg(1, 'goal_position') - SEED.position_from_rad(0.3)) > 50
     manager.read_states()
     assert manager.servos['arm'].fresh
 
@@ -405,7 +412,7 @@ def test_command_timeout_zeroes_streamed_goals(rig: Rig) -> None:
     manager.check_command_timeout()
     manager.write_pending()
     assert rig.reg(2, 'goal_velocity') == 0
-    assert rig.reg(1, 'goal_position') == model.position_from_rad(0.2)   # position is kept
+    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.2)   # position is kept
     assert any('goal set to zero' in line for line in rig.logs)
 
 
@@ -424,10 +431,31 @@ def test_missing_servo_refuses_or_skips(rig: Rig) -> None:
     assert not result.success and 'not on the bus' in result.message
 
 
-def test_a_wrong_model_is_refused(rig: Rig) -> None:
-    rig.sim.servo(2).memory.set('model_number', 1020)
+@pytest.mark.parametrize('number, name', [(350, 'XL-320'), (2000, 'PH42-020-S300-R'),
+                                          (311, 'MX-64'), (9999, 'model number 9999')])
+def test_an_unsupported_model_is_refused_by_name(rig: Rig, number: int, name: str) -> None:
+    rig.sim.servo(2).memory.set('model_number', number)
     manager = rig.manager(validate(params()))
-    with pytest.raises(ManagerError, match='model 1020'):
+    with pytest.raises(ManagerError) as refused:
+        manager.configure()
+    text = str(refused.value)
+    assert "joint 'wheel'" in text and name in text
+    assert 'supported: DYNAMIXEL XM430/XH430/XD430' in text and 'XL330/XC330' in text
+    assert rig.reg(2, 'torque_enable') == 0 and rig.reg(2, 'operating_mode') == 3
+
+
+def test_the_model_a_joint_names_is_enforced(rig: Rig) -> None:
+    # The servo answers as an XM430-W350 (1020): fine when nothing or 1020 is asked ...
+    rig.sim.servo(2).memory.set('model_number', 1020)
+    manager = rig.manager(validate(params(**{'wheel.model': 'XM430-W350'})))
+    manager.configure()
+    assert manager.servos['wheel'].model.name == 'XM430-W350'
+    assert manager.servos['arm'].model.number == 1030
+    manager.close()
+    # ... refused by name when the file says another model.
+    manager = rig.manager(validate(params(**{'wheel.model': 1030})))
+    with pytest.raises(ManagerError, match=r'is a XM430-W350 .model 1020.*wheel.model '
+                                           'XM430-W210'):
         manager.configure()
 
 
@@ -469,7 +497,7 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     manager.activate()
     # Three turns and a bit away from where it started.
     target = rig.reg(1, 'present_position') + 3 * 4096 + 500
-    assert manager.command_now('position', ['arm'], [model.position_to_rad(target)]).success
+    assert manager.command_now('position', ['arm'], [SEED.position_to_rad(target)]).success
     deadline = time.monotonic() + 10.0
     while abs(rig.reg(1, 'present_position') - target) > 10 and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -489,7 +517,7 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     assert rig.reg(1, 'homing_offset') == 0                # kept by the driver, no EEPROM
     assert rig.reg(1, 'torque_enable') == 1
     # A goal in the joint's frame lands where it says.
-    goal = model.position_to_rad(target + 100)
+    goal = SEED.position_to_rad(target + 100)
     assert manager.command_now('position', ['arm'], [goal]).success
     assert rig.reg(1, 'goal_position') + arm.turn_offset == target + 100
 
@@ -598,7 +626,7 @@ def test_a_restart_is_caught_by_a_motion_only_read(active: Tuple[Rig, Manager]) 
     rig.wait_booted(2)
     manager.read_states()                 # motion part only: reads all zeros from servo 2
     lengths = [p.params[2] for p in rig.tap.packets if p.instruction == Instruction.SYNC_READ]
-    assert lengths[0] == model.STATE_BLOCK.motion_size
+    assert lengths[0] == SEED_BLOCK.motion_size
     assert manager.servos['wheel'].restarts == 1
     assert not manager.servos['wheel'].fresh        # nothing published from that read
     run_cycles(manager, no_tasks(manager), step_s=0.01)
@@ -617,4 +645,4 @@ def test_a_horn_at_minus_pi_at_rest_is_not_a_restart(active: Tuple[Rig, Manager]
     manager.read_states()
     arm = manager.servos['arm']
     assert arm.fresh and arm.restarts == 0
-    assert arm.state[0] == 0 and model.position_to_rad(arm.state[0]) == -math.pi
+    assert arm.state[0] == 0 and SEED.position_to_rad(arm.state[0]) == -math.pi

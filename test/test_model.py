@@ -1,73 +1,117 @@
-"""Unit conversions (raw <-> SI round trips) and the packed state block."""
+"""Unit conversions (raw <-> SI round trips) per model and the packed state block."""
 
 import math
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
+from dxl_servo_driver.models import ALL_MODELS, Model, model_for
+from dxl_servo_driver.models.units import units_for
 from hypothesis import given, strategies as st
+import pytest
+
+SEED = units_for(model_for(1030))
 
 
 @given(st.integers(min_value=-ct.EXTENDED_POSITION_LIMIT, max_value=ct.EXTENDED_POSITION_LIMIT))
 def test_position_round_trip_from_raw(raw: int) -> None:
-    assert model.position_from_rad(model.position_to_rad(raw)) == raw
+    assert SEED.position_from_rad(SEED.position_to_rad(raw)) == raw
 
 
 @given(st.floats(min_value=-1600.0, max_value=1600.0, allow_nan=False))
 def test_position_round_trip_from_rad(rad: float) -> None:
-    back = model.position_to_rad(model.position_from_rad(rad))
-    assert abs(back - rad) <= model.RAD_PER_PULSE / 2 + 1e-12
+    back = SEED.position_to_rad(SEED.position_from_rad(rad))
+    assert abs(back - rad) <= SEED.rad_per_pulse / 2 + 1e-12
 
 
-@given(st.integers(min_value=-1023, max_value=1023))
+@given(st.integers(min_value=-2047, max_value=2047))
 def test_velocity_round_trip(raw: int) -> None:
-    assert model.velocity_from_rad_s(model.velocity_to_rad_s(raw)) == raw
+    assert SEED.velocity_from_rad_s(SEED.velocity_to_rad_s(raw)) == raw
 
 
-@given(st.integers(min_value=-1193, max_value=1193))
-def test_current_round_trip(raw: int) -> None:
-    assert model.current_from_a(model.current_to_a(raw)) == raw
+@pytest.mark.parametrize('number', [1030, 1040, 1200])
+@given(raw=st.integers(min_value=-2352, max_value=2352))
+def test_current_round_trip(number: int, raw: int) -> None:
+    units = units_for(model_for(number))
+    assert units.current_from_a(units.current_to_a(raw)) == raw
 
 
 @given(st.integers(min_value=-885, max_value=885))
 def test_pwm_round_trip(raw: int) -> None:
-    assert model.pwm_from_ratio(model.pwm_to_ratio(raw)) == raw
+    assert SEED.pwm_from_ratio(SEED.pwm_to_ratio(raw)) == raw
 
 
 @given(st.integers(min_value=0, max_value=300))
 def test_voltage_round_trip(raw: int) -> None:
-    assert model.voltage_from_v(model.voltage_to_v(raw)) == raw
+    assert SEED.voltage_from_v(SEED.voltage_to_v(raw)) == raw
 
 
 def test_units_match_the_seed() -> None:
-    assert model.position_to_rad(2048) == 0.0
-    assert math.isclose(model.position_to_rad(2048 + 4096), 2 * math.pi)
-    assert math.isclose(model.position_to_rad(0), -math.pi)
+    assert SEED.position_to_rad(2048) == 0.0
+    assert math.isclose(SEED.position_to_rad(2048 + 4096), 2 * math.pi)
+    assert math.isclose(SEED.position_to_rad(0), -math.pi)
     # 0.229 rpm per unit
-    assert math.isclose(model.velocity_to_rad_s(1), 0.229 * 2 * math.pi / 60)
-    assert math.isclose(model.current_to_a(1000), 2.69)
-    assert model.pwm_to_ratio(885) == 1.0
-    assert math.isclose(model.voltage_to_v(120), 12.0)
-    assert math.isclose(model.DEFAULT_TORQUE_CONSTANT_NM_PER_A * 2.3, 4.1)
+    assert math.isclose(SEED.velocity_to_rad_s(1), 0.229 * 2 * math.pi / 60)
+    assert math.isclose(SEED.current_to_a(1000), 2.69)
+    assert SEED.pwm_to_ratio(885) == 1.0
+    assert math.isclose(SEED.voltage_to_v(120), 12.0)
+    # Seed datasheet: 4.1 N.m at 2.3 A, for 1030 and 1020 alike (the seed wins for 1030).
+    assert math.isclose(SEED.torque_constant_nm_per_a * 2.3, 4.1)
+    assert math.isclose(SEED.effort_to_nm(1000), 2.69 * 4.1 / 2.3)
+    assert units_for(model_for(1020)).torque_constant_nm_per_a == SEED.torque_constant_nm_per_a
 
 
-def test_state_block_maps_every_byte_of_its_registers() -> None:
-    block = model.STATE_BLOCK
+def test_units_differ_where_the_models_do() -> None:
+    # XH430-V: 1.34 mA per count; X330: 1 mA.
+    assert math.isclose(units_for(model_for(1040)).current_to_a(1000), 1.34)
+    assert math.isclose(units_for(model_for(1200)).current_to_a(1000), 1.0)
+    # XL330-M288: 0.52 N.m at 1.47 A (5 V): effort of 1000 mA.
+    assert math.isclose(units_for(model_for(1200)).effort_to_nm(1000), 0.52 / 1.47)
+    # A torque constant from the file wins over the datasheet's.
+    assert math.isclose(units_for(model_for(1200), 0.5).effort_to_nm(1000), 0.5)
+
+
+def test_load_models_publish_effort_from_present_load() -> None:
+    xl430 = units_for(model_for(1060))
+    assert xl430.effort_register == 'present_load'
+    # Present Load is 0.1 % of the stall torque (1.4 N.m at 11.1 V): 500 is half of it.
+    assert math.isclose(xl430.effort_to_nm(500), 0.7)
+    assert math.isnan(xl430.current_to_a(100))
+    with pytest.raises(ValueError, match='senses no current'):
+        xl430.current_from_a(0.1)
+    assert 'current' not in xl430.kinds
+    assert set(xl430.kinds) == {'position', 'velocity', 'pwm'}
+    assert set(SEED.kinds) == {'position', 'velocity', 'current', 'pwm'}
+
+
+@pytest.mark.parametrize('table', ALL_MODELS, ids=lambda m: f'{m.name}-fw{m.min_firmware}')
+def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
+    effort = 'present_current' if table.has('present_current') else 'present_load'
+    block = model.state_block(table, effort)
     targets = block.indirect_map()
     assert len(targets) == block.size
     expected = []
     for name in block.names:
-        item = ct.BY_NAME[name]
+        if block.compact and name in block.COMPACT_DROPS:
+            continue
+        item = table.item(block.register(name))
         expected.extend(range(item.address, item.address + item.size))
     assert targets == expected
-    # Indirect addresses may only point at RAM (the seed: 64..661).
-    assert all(64 <= address <= 661 for address in targets)
-    assert block.read_address == 224
+    # Only a table with fewer than 22 indirect entries (X330 before firmware 53) drops PWM.
+    assert block.compact == (len(table.indirect) < 22) and block.has_pwm != block.compact
+    # Indirect addresses may only point at RAM.
+    assert all(64 <= address < table.table_end for address in targets)
+    assert (block.read_address, block.indirect_map_address()) == table.indirect[0][::-1]
+    # The block's indirect data bytes are consecutive: one read fetches them.
+    data = [pair[1] for pair in table.indirect[:block.size]]
+    assert data == list(range(block.read_address, block.read_address + block.size))
+    # The seed's table and every model since the X330 moved its block: 224; before: 208.
+    old_x330 = table.family in ('XL330', 'XC330') and table.min_firmware == 0
+    assert block.read_address == (208 if old_x330 else 224)
     assert block.indirect_map_address() == 168
-    assert block.size <= 28    # stays within indirect data 1..28
 
 
 def test_state_block_decodes_signed_values() -> None:
-    block = model.STATE_BLOCK
+    block = model.state_block(model_for(1030), 'present_current')
     raw = bytearray(block.size)
     values = {'present_position': -5000, 'present_velocity': -7, 'present_current': -300,
               'present_pwm': -885, 'present_input_voltage': 121, 'present_temperature': 41,
@@ -77,10 +121,12 @@ def test_state_block_decodes_signed_values() -> None:
         item = ct.BY_NAME[field.name]
         raw[field.offset:field.offset + field.size] = values[field.name].to_bytes(
             field.size, 'little', signed=item.signed)
-    decoded = dict(zip(block.names, block.decode(bytes(raw))))
+    decoded = dict(zip((field.name for field in block.fields), block.decode(bytes(raw))))
     assert decoded == values
     assert not block.restarted(block.decode(bytes(raw)))
     assert block.restarted(block.decode(bytes(block.size)))
+    # The shape the cycle decodes with is every block's.
+    assert model.BLOCK_SHAPE.decode(bytes(raw)) == block.decode(bytes(raw))
 
 
 def test_bus_budget_matches_the_spec_formula() -> None:
@@ -97,4 +143,9 @@ def test_bus_budget_matches_the_spec_formula() -> None:
 def test_mode_commands_cover_every_mode() -> None:
     assert set(model.MODE_COMMANDS) == set(ct.OPERATING_MODES)
     for kinds in model.MODE_COMMANDS.values():
-        assert kinds <= set(model.COMMAND_KINDS)
+        assert kinds <= set(model.MODE_KINDS)
+    for table in ALL_MODELS:
+        units = units_for(table)
+        for mode in table.modes:
+            # Every mode a model has is driven by commands it has.
+            assert model.MODE_COMMANDS[mode] <= set(units.kinds), (table.name, mode)

@@ -6,7 +6,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CHECKED = ['model.py', 'config.py', 'control_table.py', 'protocol.py', 'manager.py', 'bus.py',
-           'scan.py', 'sim', 'tasks.py', 'models']
+           'scan.py', 'sim', 'tasks.py', 'models', 'transports.py']
 
 
 def test_the_layers_below_the_node_type_check() -> None:

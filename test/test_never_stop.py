@@ -19,8 +19,8 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
 
 from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from dxl_servo_driver.manager import open_port
 from dxl_servo_driver.node import StartupFailure
+from dxl_servo_driver.transports import open_transport as open_port
 from lifecycle_msgs.msg import Transition
 from node_harness import NodeHarness, sim_params, startup_failure
 import pytest

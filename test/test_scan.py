@@ -7,7 +7,8 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import config, scan
 from dxl_servo_driver import control_table as ct
-from dxl_servo_driver.bus import Bus, BusError, open_port
+from dxl_servo_driver.bus import Bus, open_port
+from dxl_servo_driver.errors import CommError
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
 import yaml
@@ -15,7 +16,7 @@ import yaml
 # Tests that expect replies give each one plenty of time: a loaded machine may not schedule the
 # virtual_bus process at once. Nothing here measures time.
 SLOW_MACHINE_TIMEOUT_MS = '200'
-XM430_LINE = 'id {id}: model 1030 (XM430-class), firmware 45, {baud} bps, mode {mode}, ' \
+XM430_LINE = 'id {id}: model 1030 (XM430-W210), firmware 45, {baud} bps, mode {mode}, ' \
              'hardware errors: {errors}'
 
 
@@ -50,7 +51,7 @@ def retried(call: Callable[[], Any], attempts: int = 5) -> Any:
     for attempt in range(attempts):
         try:
             return call()
-        except BusError:
+        except CommError:
             if attempt == attempts - 1:
                 raise
     raise AssertionError('unreachable')
@@ -121,7 +122,7 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
         try:
             # The servo switches baud on this write; its status may not arrive at the old one.
             bus.write_item(2, baud, 3)   # raw 3 = 1 Mbps
-        except BusError:
+        except CommError:
             pass
 
     with_bus(device, 57600, prepare)
@@ -160,7 +161,9 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
     flat = flatten(yaml.safe_load(output.read_text()))
     assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'joints': ['joint_4', 'joint_9'],
                     'joint_4.id': 4, 'joint_4.operating_mode': 'position',
-                    'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position'}
+                    'joint_4.model': 'XM430-W210',
+                    'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position',
+                    'joint_9.model': 'XM430-W210'}
     parsed = config.validate(flat)
     assert parsed.joint('joint_9').operating_mode == 'current_based_position'
     assert not list(tmp_path.glob('bus.yaml.tmp*'))
@@ -249,11 +252,16 @@ def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optiona
 
 
 def test_describe_says_what_could_not_be_read() -> None:
-    assert scan.describe(servo(5, model=1200, mode=None, errors=None, firmware=44)) == (
-        'id 5: model 1200 (unknown model), firmware 44, 57600 bps, '
+    assert scan.describe(servo(5, model=350, mode=None, errors=None, firmware=44)) == (
+        'id 5: model 350 (XL-320, not supported), firmware 44, 57600 bps, '
         'mode not read (unknown control table), hardware errors: not read')
+    assert scan.describe(servo(9, model=9999, mode=None, errors=None)).startswith(
+        'id 9: model 9999 (unknown model)')
+    # Every supported model is named, and its own table reads its mode.
+    assert scan.describe(servo(4, model=1060, mode=16)).startswith(
+        'id 4: model 1060 (XL430-W250), firmware 45, 57600 bps, mode pwm')
     assert scan.describe(servo(6, mode=None, errors=None, firmware=None)) == (
-        'id 6: model 1030 (XM430-class), firmware ? (no reply), 57600 bps, mode ? (no reply), '
+        'id 6: model 1030 (XM430-W210), firmware ? (no reply), 57600 bps, mode ? (no reply), '
         'hardware errors: ? (no reply)')
     assert scan.describe(servo(7, mode=2, errors=0x24)).endswith(
         'mode 2 (not a valid mode), hardware errors: overheating, overload (0x24)')
@@ -266,25 +274,28 @@ def test_the_baud_with_most_servos_wins_and_a_tie_goes_to_the_first_scanned() ->
 
 
 def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
-    found = [servo(1), servo(2, model=1200), servo(3, mode=2), servo(4, mode=None),
-             servo(5, 1000000), servo(6, mode=16)]
+    found = [servo(1), servo(2, model=350), servo(3, mode=2), servo(4, mode=None),
+             servo(5, 1000000), servo(6, mode=16, model=1060)]
     params, comments = scan.build_parameters('/dev/ttyDXL', found, latency_timer_ms=1.0)
     assert params['joints'] == ['joint_1', 'joint_6']
     assert params['joint_6.operating_mode'] == 'pwm'
+    assert (params['joint_1.model'], params['joint_6.model']) == ('XM430-W210', 'XL430-W250')
     assert params['latency_timer'] == 1.0
     text = '\n'.join(comments)
     for servo_id in (2, 3, 4, 5):
         assert f'  id {servo_id}' in text
     assert 'set its baud_rate register to 1 (57600 bps)' in text
     with pytest.raises(ValueError, match='no servo the node could drive'):
-        scan.build_parameters('/dev/ttyDXL', [servo(2, model=1200)])
+        scan.build_parameters('/dev/ttyDXL', [servo(2, model=350)])
     with pytest.raises(ValueError, match='no servo found'):
         scan.build_parameters('/dev/ttyDXL', [])
 
 
 def test_the_rendered_file_parses_back_to_the_same_parameters() -> None:
     port = "/dev/serial/by-id/usb-FTDI_it's #1: U2D2"   # quote, hash, colon and spaces
-    params, comments = scan.build_parameters(port, [servo(12, mode=1), servo(3, mode=4)], 16.0)
+    params, comments = scan.build_parameters(
+        port, [servo(12, mode=1), servo(3, mode=4, model=1090)], 16.0)
     text = scan.render_parameter_file(params, comments, 'header')
     assert flatten(yaml.safe_load(text)) == params
+    assert config.validate(params).joint('joint_3').model.name == '2XL430-W250'
     assert config.validate(params).joint('joint_12').operating_mode == 'velocity'

@@ -9,11 +9,12 @@ from dataclasses import dataclass, field
 import math
 
 from dxl_servo_driver.control_table import Item
+from dxl_servo_driver.errors import ConfigurationError
 
 __all__ = ['Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
 
 
-class ModelError(ValueError):
+class ModelError(ConfigurationError):
     """A model number, name or firmware the catalogue does not support."""
 
 

@@ -254,10 +254,12 @@ _MODELS: list[Model] = [
     _seed_model(1020, 'XM430-W350', _physics(
         353.5, 12.0, ((11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)),
         'seed manual (identical to the e-manual XM430-W350 specifications)')),
+    # The seed is model 1030 and the authority for it: its figures win over the e-manual's
+    # XM430-W210 ones (212.6:1, 3.0 N.m at 2.3 A, 77 rpm at 12 V), see SEED_DIFFERENCES.
     _seed_model(1030, 'XM430-W210', _physics(
-        212.6, 12.0, ((11.1, 2.7, 2.1, 70), (12.0, 3.0, 2.3, 77), (14.8, 3.7, 2.7, 95)),
-        _SPEC.format('XM430-W210') + '; the seed, although model 1030, quotes the '
-        'XM430-W350 figures (see SEED_DIFFERENCES)')),
+        353.5, 12.0, ((11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)),
+        'seed manual (model 1030; the e-manual XM430-W210 specifications differ: 212.6:1, '
+        '2.7/3.0/3.7 N.m, 70/77/95 rpm)')),
     _model(1000, 'XH430-W350', X430, _Tuning(80, _X430_12V, (648, 2.69), 130,
                                              (1920, 100, 0, 0, 900)), _physics(
         353.5, 12.0, ((11.1, 3.1, 1.2, 27), (12.0, 3.4, 1.3, 30), (14.8, 4.2, 1.5, 37)),
@@ -502,8 +504,9 @@ SEED_DIFFERENCES: tuple[str, ...] = (
     'The seed range is kept for 1020 and 1030, the e-manual one used elsewhere.',
     "The seed's Model Number initial is 1030; model 1020 reports 1020.",
     "The seed's datasheet figures (353.5:1, 4.1 N.m at 2.3 A and 46 rpm at 12 V) are the "
-    'XM430-W350 ones although its model number is 1030 (XM430-W210). 1020 uses them; 1030 '
-    'uses the e-manual XM430-W210 figures (212.6:1, 3.0 N.m at 2.3 A, 77 rpm at 12 V).',
+    'XM430-W350 ones although its model number is 1030 (XM430-W210, 212.6:1, 3.0 N.m at '
+    '2.3 A, 77 rpm at 12 V in the e-manual). The seed is the authority for 1030: both 1020 '
+    'and 1030 use its figures (torque constant 4.1/2.3 N.m/A, simulator physics).',
     "The SDK model file's 'Indirect Address Write/Read' and 'Indirect Data Write/Read' rows "
     'are aliases of Indirect Address/Data 1 and 29, not further items.',
 )
