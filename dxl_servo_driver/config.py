@@ -6,6 +6,7 @@ validate() takes the flat parameter dictionary a ROS parameter file gives (`join
 naming the offending key. It runs before the bus is touched, so a bad file never moves a servo.
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 import math
 from typing import Any, Dict, List, Mapping, Optional, Tuple
@@ -182,7 +183,8 @@ def _check_type(key: str, value: Any, expected: type) -> Any:
     raise AssertionError(expected)
 
 
-def _check_spec(spec: ParamSpec, value: Any) -> Any:
+def check_spec(spec: ParamSpec, value: Any) -> Any:
+    """Return a top-level parameter's value checked (type, choices, range); ConfigError if not."""
     value = _check_type(spec.name, value, spec.kind)
     if spec.choices and value not in spec.choices:
         raise ConfigError(spec.name, f'{value!r} is not one of {list(spec.choices)}')
@@ -200,7 +202,7 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
     values: Dict[str, Any] = {}
     for spec in PARAMS:
         if spec.name in params:
-            values[spec.name] = _check_spec(spec, params[spec.name])
+            values[spec.name] = check_spec(spec, params[spec.name])
         else:
             values[spec.name] = spec.default
     joint_names: List[str] = values.pop('joints')
@@ -345,6 +347,11 @@ def check_joint_against(joint: JointConfig, table: models.Model) -> str:
     if problem is not None:
         return f'parameter {problem[0]!r}: {problem[1]}'
     return ''
+
+
+def replace(config: DriverConfig, **changes: Any) -> DriverConfig:
+    """Return the configuration with some top-level values changed (runtime parameters)."""
+    return dataclasses.replace(config, **changes)
 
 
 def check_thresholds(values: Mapping[str, Any]) -> None:

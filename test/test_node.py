@@ -670,7 +670,10 @@ def test_parameters_are_described(h: NodeHarness) -> None:
     descriptor = h.node.describe_parameter('loop_rate')
     assert descriptor.description and not descriptor.read_only
     assert descriptor.floating_point_range[0].from_value > 0.0
-    assert h.node.describe_parameter('port').read_only
+    # Read at configure: settable while unconfigured only (see the test below); joints never.
+    assert not h.node.describe_parameter('port').read_only
+    assert 'Read at configure' in h.node.describe_parameter('port').description
+    assert h.node.describe_parameter('joints').read_only
     assert 'address' in h.node.describe_parameter('arm.registers.profile_velocity').description
 
 
@@ -696,6 +699,37 @@ def test_not_active_without_autostart() -> None:
         assert h.call('change_state', transition=transition).success
         assert h.reg(IDS['arm'], 'torque_enable') == 0   # torque_off_on_shutdown
         assert not h.call('set_position', name=['arm'], value=[0.1]).success
+
+
+def change(h: NodeHarness, transition_id: int) -> bool:
+    return bool(h.call('change_state', transition=Transition(id=transition_id)).success)
+
+
+def test_parameters_set_while_unconfigured_are_used_by_the_next_configure() -> None:
+    with NodeHarness(sim_params(JOINTS, autostart=False)) as h:
+        assert h.set_parameter('arm.registers.profile_velocity', 77).successful
+        assert h.set_parameter('torque_on_start', False).successful
+        assert change(h, Transition.TRANSITION_CONFIGURE)
+        assert change(h, Transition.TRANSITION_ACTIVATE)
+        assert h.reg(IDS['arm'], 'profile_velocity') == 77
+        assert h.reg(IDS['arm'], 'torque_enable') == 0
+        # While configured they are refused, saying when they can change.
+        result = h.set_parameter('arm.registers.profile_velocity', 88)
+        assert not result.successful and 'read at configure' in result.reason
+        assert not h.set_parameter('joints', ['arm']).successful
+        assert change(h, Transition.TRANSITION_DEACTIVATE)
+        assert change(h, Transition.TRANSITION_CLEANUP)
+        # A bad value is taken as given, and the configure that reads it says what is wrong.
+        assert h.set_parameter('arm.registers.profile_velocity', -5).successful
+        assert not change(h, Transition.TRANSITION_CONFIGURE)
+        assert h.call('get_state').current_state.label == 'unconfigured'
+        assert h.set_parameter('arm.registers.profile_velocity', 99).successful
+        assert h.set_parameter('torque_on_start', True).successful
+        assert change(h, Transition.TRANSITION_CONFIGURE)
+        assert change(h, Transition.TRANSITION_ACTIVATE)
+        assert h.reg(IDS['arm'], 'profile_velocity') == 99
+        assert h.reg(IDS['arm'], 'torque_enable') == 1
+        h.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
 
 
 def test_harness_leaves_no_thread_running() -> None:

@@ -1,0 +1,229 @@
+"""
+The bus cycle runner: read, write goals, step recovery, publish, pace; until stopped.
+
+It runs in its own thread at loop_rate (or, with cycle_driver timer, from an executor timer),
+so it never waits on the executor. Any exception is logged, counted and survived; a
+BaseException ends the cycle and is kept in `failure` for the node to go to its error state.
+"""
+
+import threading
+import time
+import traceback
+from typing import Any, Callable, Optional, Protocol
+
+from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.ros.diagnostics import CycleFacts
+from dxl_servo_driver.ros.rates import RateMeter, Shortfall
+
+RATE_LOG_INTERVAL_S = 60.0
+
+
+class Host(Protocol):
+    """What the runner needs of the node."""
+
+    manager: Manager
+
+    def get_logger(self) -> Any:
+        """Return the node's logger."""
+
+    def get_clock(self) -> Any:
+        """Return the node's clock (stamps of the samples)."""
+
+    def create_timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+        """Create an executor timer."""
+
+    def destroy_timer(self, timer: Any) -> Any:
+        """Destroy an executor timer."""
+
+
+class CycleRunner:
+    """Drives the manager's cycle at the loop rate and measures it."""
+
+    def __init__(self, host: Host, loop_rate_hz: float,
+                 publish: Callable[[Any, bool], None]) -> None:
+        self._host = host
+        self._publish = publish
+        self._stop = threading.Event()
+        self._wake = threading.Event()     # cuts the cycle's sleep short (stop, new loop_rate)
+        self.thread: Optional[threading.Thread] = None
+        self._timer: Any = None
+        self.rate = RateMeter()
+        self._shortfall = Shortfall()
+        self.period_s = 1.0 / loop_rate_hz
+        self._period_changed = False
+        self.bus_cycle_s = 0.0
+        self._read_stamp: Any = None
+        self._read_began_s = 0.0
+        self._next_rate_log_s = 0.0
+        self.last_cycle_s = 0.0
+        self.cycle_errors = 0
+        self.failure: Optional[BaseException] = None
+
+    # control --------------------------------------------------------------------------------
+    def start(self, driver: str, bus_cycle_s: float) -> None:
+        """Start cycling: in a thread (`thread`) or from an executor timer (`timer`)."""
+        self.bus_cycle_s = bus_cycle_s
+        self._stop.clear()
+        self._wake.clear()
+        self.rate.reset()
+        self._shortfall.reset()
+        self._next_rate_log_s = 0.0
+        self.last_cycle_s = time.monotonic()
+        self.failure = None
+        if driver == 'timer':
+            self._timer = self._host.create_timer(self.period_s, self._timer_cycle)
+        else:
+            self.thread = threading.Thread(target=self._run, name='dxl_bus_cycle', daemon=True)
+            self.thread.start()
+
+    def stop(self) -> None:
+        """Stop cycling and wait for the thread (never from the thread itself)."""
+        self._stop.set()
+        self._wake.set()
+        if self._timer is not None:
+            self._host.destroy_timer(self._timer)
+            self._timer = None
+        if self.thread is not None:
+            if self.thread is not threading.current_thread():
+                self.thread.join(timeout=5.0)
+                if self.thread.is_alive():
+                    self._host.get_logger().error('the bus cycle did not stop within 5 s')
+            self.thread = None
+
+    def set_rate(self, hz: float) -> None:
+        """Take a new loop_rate at once (the sleep under way is cut short)."""
+        self.period_s = 1.0 / hz
+        self._period_changed = True
+        self._shortfall.reset()
+        self._wake.set()
+        if self._timer is not None:
+            self._host.destroy_timer(self._timer)
+            self._timer = self._host.create_timer(self.period_s, self._timer_cycle)
+
+    def facts(self) -> CycleFacts:
+        """Return what the diagnostics say of the cycle."""
+        return CycleFacts(self.rate.rate_hz, 1.0 / self.period_s,
+                          time.monotonic() - self.last_cycle_s, self.cycle_errors, self.failure)
+
+    # the cycle ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        """Run the bus cycle in its thread; if it ever fails for good, say so and keep why."""
+        try:
+            self._loop()
+        except BaseException as exc:  # noqa: B902 - never a silent death of the cycle
+            self.failure = exc
+            self._host.manager.abort_read()
+            self._host.get_logger().fatal(
+                f'the bus cycle stopped: {exc!r}; going to the error state (torque off)\n'
+                + ''.join(traceback.format_exception(exc)))
+
+    def _loop(self) -> None:
+        """
+        Read, write goals, step recovery, publish, pace; until stopped.
+
+        When the next cycle is due at once (the loop runs as fast as the bus allows), the next
+        read goes on the wire before this cycle is published, so publishing overlaps the bus
+        transaction instead of adding to it. Any exception is logged, counted and survived.
+        """
+        manager = self._host.manager
+        next_s = time.monotonic()
+        reading = False
+        pipelined = False
+        while not self._stop.is_set():
+            try:
+                if not pipelined:
+                    reading = self._begin()
+                stamp, began_s = self._read_stamp, self._read_began_s
+                ok = reading and self._end(began_s)
+                reading = False
+                period = self.period_s
+                next_s += period
+                now = time.monotonic()
+                if next_s < now - period:
+                    next_s = now   # behind: run as fast as the bus allows, without a backlog
+                manager.cycle_write(tasks_until=next_s - self.bus_cycle_s)
+                self._shortfall.add_cycle(time.monotonic() - began_s)
+                pipelined = next_s - time.monotonic() <= self.bus_cycle_s
+                if pipelined:
+                    reading = self._begin()
+                self._publish(stamp, ok)
+            except Exception as exc:  # noqa: B902 - the cycle must survive anything
+                self.cycle_errors += 1
+                manager.abort_read()
+                reading = pipelined = False
+                self._host.get_logger().error(f'cycle failed: {exc!r}',
+                                              throttle_duration_sec=2.0)
+                self._stop.wait(0.05)
+                next_s = time.monotonic()
+            self.last_cycle_s = time.monotonic()
+            self._tick_rate()
+            if not pipelined:
+                delay = next_s - time.monotonic()
+                if delay > 0.0 and self._wake.wait(delay):
+                    self._wake.clear()
+                if self._period_changed:
+                    self._period_changed = False
+                    next_s = time.monotonic()
+        manager.abort_read()   # never leave the bus held
+
+    def _begin(self) -> bool:
+        """Stamp and start a read; False when nothing is in flight (port lost, no servo)."""
+        self._read_stamp = self._host.get_clock().now().to_msg()
+        self._read_began_s = time.monotonic()
+        return self._host.manager.cycle_begin()
+
+    def _end(self, began_s: float) -> bool:
+        # Lost or corrupted replies are read again while the cycle has time (or twice the bus
+        # time when the loop runs as fast as the bus allows).
+        retry_until = began_s + max(0.9 * self.period_s, 2.0 * self.bus_cycle_s)
+        return self._host.manager.cycle_end(retry_until)
+
+    def _timer_cycle(self) -> None:
+        manager = self._host.manager
+        try:
+            began = self._begin()
+            ok = began and self._end(self._read_began_s)
+            now = time.monotonic()
+            manager.cycle_write(tasks_until=now + 0.5 * self.period_s)
+            self._shortfall.add_cycle(time.monotonic() - self._read_began_s)
+            self._publish(self._read_stamp, ok)
+        except Exception as exc:  # noqa: B902 - the cycle must survive anything
+            self.cycle_errors += 1
+            manager.abort_read()
+            self._host.get_logger().error(f'cycle failed: {exc!r}', throttle_duration_sec=2.0)
+        self.last_cycle_s = time.monotonic()
+        self._tick_rate()
+
+    def _tick_rate(self) -> None:
+        windows = self.rate.windows
+        self.rate.tick()
+        log = self._host.get_logger()
+        if self.rate.windows != windows:
+            requested = 1.0 / self.period_s
+            blame = self._shortfall.window(self.rate.rate_hz, requested)
+            budget = self._host.manager.bus_budget()
+            if blame == 'bus':
+                log.warning(
+                    f'the bus cannot keep loop_rate {requested:g} Hz: measured '
+                    f'{self.rate.rate_hz:.1f} Hz (bus limit {budget.rate_limit_hz:.0f} Hz); '
+                    'running as fast as it allows')
+            elif blame == 'machine':
+                log.warning(
+                    f'loop_rate {requested:g} Hz not reached: measured '
+                    f'{self.rate.rate_hz:.1f} Hz while the bus had time to spare (the '
+                    'machine is busy)')
+        if time.monotonic() >= self._next_rate_log_s:
+            self._log_rate()
+
+    def _log_rate(self) -> None:
+        # A first report once the rate has settled, then one a minute.
+        first = self._next_rate_log_s == 0.0
+        self._next_rate_log_s = time.monotonic() + (3.0 if first else RATE_LOG_INTERVAL_S)
+        if first:
+            return
+        manager = self._host.manager
+        budget = manager.bus_budget()
+        self._host.get_logger().info(
+            f'measured loop rate {self.rate.rate_hz:.1f} Hz (requested '
+            f'{1.0 / self.period_s:g} Hz, bus limit {budget.rate_limit_hz:.0f} Hz); '
+            f'{manager.read_failures} read failures, {manager.retries} retries')
