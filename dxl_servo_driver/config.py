@@ -84,6 +84,9 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'and restore its configuration and torque. Off: report it and leave it to you.'),
     ParamSpec('recovery_interval', float, 5.0,
               'Minimum time between two recovery reboots of the same servo.', 's', 0.1, 3600.0),
+    ParamSpec('goal_tolerance', float, 0.05,
+              'A trajectory whose joints end farther than this from its last point (0.5 s after '
+              'its end) is reported (log and /diagnostics).', 'rad', 0.0, 10.0),
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
               'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
@@ -143,6 +146,7 @@ class DriverConfig:
     executor: str = 'events'
     hardware_error_recovery: bool = False
     recovery_interval: float = 5.0
+    goal_tolerance: float = 0.05
     temperature_warn: float = 70.0
     temperature_error: float = 78.0
     voltage_low: float = 10.0

@@ -14,6 +14,9 @@ from typing import Any, Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import trajectory as traj
+from dxl_servo_driver.commands import JointStateCommandError, split_joint_state
 from dxl_servo_driver.errors import DriverError, Interrupted
 from dxl_servo_driver.manager import Manager, ManagerError
 from dxl_servo_driver.ros import parameters
@@ -57,7 +60,10 @@ class DriverNode(LifecycleNode):
         self.manager = self._new_manager(self.config)
         self._active = False
         self._shut_down = False
-        self._runner = CycleRunner(self, self.config.loop_rate, self._publish)
+        self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
+                                   self._prepare_goals)
+        self._trajectories = traj.Executor(self._present_rad, self._trajectory_ended,
+                                           self.config.goal_tolerance)
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.order)
@@ -142,6 +148,8 @@ class DriverNode(LifecycleNode):
                 self._set_health_period()
             elif name == 'command_timeout':
                 self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
+            elif name == 'goal_tolerance':
+                self._trajectories.tolerance_rad = value
             else:
                 self._thresholds[name] = value
         return SetParametersResult(successful=True)
@@ -265,6 +273,7 @@ class DriverNode(LifecycleNode):
     def _stop_cycle(self) -> None:
         self._active = False
         self._runner.stop()
+        self._trajectories.cancel()
 
     def _torque_off_and_say(self, why: str) -> bool:
         """Torque off (when configured to) every servo that may be on; log what happened."""
@@ -317,6 +326,87 @@ class DriverNode(LifecycleNode):
         if self.cycle_failure is not None and self._lifecycle_state() == 'active':
             self.trigger_deactivate()
 
+    # arms: trajectories and joint-state commands -------------------------------------------
+    def _present_rad(self, name: str) -> Optional[float]:
+        servo = self.manager.servos.get(name)
+        if servo is None or servo.state is None or not servo.fresh:
+            return None
+        return servo.units.position_to_rad(servo.state[0] + servo.turn_offset)
+
+    def _limits(self) -> Dict[str, traj.Limits]:
+        limits = {}
+        for servo in self.manager.order:
+            units = servo.units
+            if servo.mode == 'position' and servo.limits:
+                low = units.position_to_rad(servo.limits['min_position_limit'])
+                high = units.position_to_rad(servo.limits['max_position_limit'])
+            else:
+                # Multi-turn: the goal register's range, in the joint's continuous frame.
+                bound = ct.EXTENDED_POSITION_LIMIT
+                low = units.position_to_rad(-bound + servo.turn_offset)
+                high = units.position_to_rad(bound + servo.turn_offset)
+            limits[servo.name] = traj.Limits(servo.mode, low, high, servo.online)
+        return limits
+
+    def submit_trajectory(self, msg: Any) -> str:
+        """Validate a JointTrajectory and start it at its stamp; '' or why it was refused."""
+        points = [traj.Point(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
+                             tuple(p.positions), tuple(p.velocities)) for p in msg.points]
+        stamp = msg.header.stamp
+        start_s = time.monotonic()
+        if stamp.sec or stamp.nanosec:
+            # The stamp is on the node's clock: the same distance from now on the cycle's.
+            now_ns = self.get_clock().now().nanoseconds
+            start_s += (stamp.sec * 10 ** 9 + stamp.nanosec - now_ns) * 1e-9
+        try:
+            trajectory = traj.validate(list(msg.joint_names), points, self._limits(), start_s)
+        except traj.TrajectoryError as exc:
+            return str(exc)
+        self._trajectories.submit(trajectory)
+        return ''
+
+    def joint_command(self, msg: Any) -> str:
+        """Queue a JointState command, each joint's value by its mode; '' or why not."""
+        servos = self.manager.servos
+        names = list(msg.name)
+        try:
+            goals = split_joint_state(
+                names, {'position': msg.position, 'velocity': msg.velocity,
+                        'effort': msg.effort},
+                {name: servo.mode for name, servo in servos.items()},
+                {name: servo.units.torque_constant_nm_per_a for name, servo in servos.items()})
+        except JointStateCommandError as exc:
+            return str(exc)
+        # Every kind is checked before any is queued: refused whole, or taken whole.
+        for kind, (joints, values) in goals.items():
+            checked, reason = self.manager.check_goals(kind, joints, values)
+            if checked is None:
+                return reason
+        for kind, (joints, values) in goals.items():
+            result = self.manager.command(kind, joints, values)
+            if not result.success:
+                return result.message
+        return ''
+
+    def _prepare_goals(self, now_s: float) -> None:
+        goals = self._trajectories.step(now_s)
+        if not goals:
+            return
+        result = self.manager.command('position', list(goals), list(goals.values()))
+        if not result.success:
+            # A joint went away (recovering, port lost): the rest of the path is not run blind.
+            self._trajectories.cancel()
+            self.get_logger().error(f'trajectory aborted: {result.message}')
+
+    def _trajectory_ended(self, outcome: traj.Outcome) -> None:
+        if outcome.beyond:
+            joints = ', '.join(f'{name} {error:.3f} rad' for name, error in outcome.beyond)
+            self.get_logger().warning(
+                f'trajectory ended beyond goal_tolerance '
+                f'{self._trajectories.tolerance_rad:g} rad: {joints}')
+        else:
+            self.get_logger().info(f'trajectory done (final error {outcome.worst_rad:.4f} rad)')
+
     # publishing -----------------------------------------------------------------------------
     def _publish(self, stamp: Any, read_ok: bool) -> None:
         if read_ok and self.joint_states_pub is not None:
@@ -331,10 +421,17 @@ class DriverNode(LifecycleNode):
 
     def _publish_diagnostics(self) -> None:
         try:
+            executor = self._trajectories
+            last = executor.last_outcome
+            extra = {'trajectories_accepted': executor.accepted,
+                     'trajectories_finished': executor.finished,
+                     'trajectories_beyond_goal_tolerance': executor.out_of_tolerance,
+                     'last_trajectory_final_error_rad':
+                         f'{last.worst_rad:.4f}' if last is not None else 'none'}
             self.diagnostics_pub.publish(diagnostics(
                 self.get_fully_qualified_name(), self.config, self.manager,
                 self._runner.facts(), self._lifecycle_state(), self._thresholds,
-                self.get_clock().now().to_msg()))
+                self.get_clock().now().to_msg(), extra))
         except Exception as exc:  # noqa: B902 - a report must not stop the executor
             self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=10.0)
 

@@ -40,9 +40,12 @@ class CycleRunner:
     """Drives the manager's cycle at the loop rate and measures it."""
 
     def __init__(self, host: Host, loop_rate_hz: float,
-                 publish: Callable[[Any, bool], None]) -> None:
+                 publish: Callable[[Any, bool], None],
+                 prepare: Callable[[float], None] = lambda now_s: None) -> None:
         self._host = host
         self._publish = publish
+        # Called right before each cycle's goal write (trajectory sampling).
+        self._prepare = prepare
         self._stop = threading.Event()
         self._wake = threading.Event()     # cuts the cycle's sleep short (stop, new loop_rate)
         self.thread: Optional[threading.Thread] = None
@@ -141,6 +144,7 @@ class CycleRunner:
                 now = time.monotonic()
                 if next_s < now - period:
                     next_s = now   # behind: run as fast as the bus allows, without a backlog
+                self._prepare(now)
                 manager.cycle_write(tasks_until=next_s - self.bus_cycle_s)
                 self._shortfall.add_cycle(time.monotonic() - began_s)
                 pipelined = next_s - time.monotonic() <= self.bus_cycle_s
@@ -184,6 +188,7 @@ class CycleRunner:
             began = self._begin()
             ok = began and self._end(self._read_began_s)
             now = time.monotonic()
+            self._prepare(now)
             manager.cycle_write(tasks_until=now + 0.5 * self.period_s)
             self._shortfall.add_cycle(time.monotonic() - self._read_began_s)
             self._publish(self._read_stamp, ok)

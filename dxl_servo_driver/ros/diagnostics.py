@@ -33,12 +33,15 @@ def _values(pairs: Mapping[str, Any]) -> List[KeyValue]:
 
 
 def diagnostics(node_name: str, config: DriverConfig, manager: Manager, facts: CycleFacts,
-                lifecycle_state: str, thresholds: Mapping[str, float], stamp: Any
-                ) -> DiagnosticArray:
-    """Return the bus status and every servo's."""
+                lifecycle_state: str, thresholds: Mapping[str, float], stamp: Any,
+                extra: Optional[Mapping[str, Any]] = None) -> DiagnosticArray:
+    """Return the bus status (with extra values) and every servo's."""
     array = DiagnosticArray()
     array.header.stamp = stamp
-    array.status.append(_bus_status(node_name, config, manager, facts, lifecycle_state))
+    bus = _bus_status(node_name, config, manager, facts, lifecycle_state)
+    if extra:
+        bus.values.extend(_values(extra))
+    array.status.append(bus)
     for servo in manager.order:
         array.status.append(_servo_status(node_name, config, servo, thresholds))
     return array

@@ -13,6 +13,8 @@ from dxl_servo_driver.tasks import Task
 from dxl_servo_driver_msgs.msg import JointCommand
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
 
 COMMAND_KINDS = ('position', 'velocity', 'current', 'pwm')
 REBOOT_WAIT_S = 10.0   # a reboot service waits this long for its servos to come back
@@ -41,6 +43,12 @@ class Host(Protocol):
     def get_logger(self) -> Any:
         """Return the node's logger (rclpy Node)."""
 
+    def submit_trajectory(self, msg: JointTrajectory) -> str:
+        """Validate and start a trajectory; return '' or why it was refused."""
+
+    def joint_command(self, msg: JointState) -> str:
+        """Queue a joint-state command; return '' or why it was refused."""
+
 
 class Interfaces:
     """The command topics (~/commands/<kind>) and services (~/set_<kind>, ~/reboot, ...)."""
@@ -51,6 +59,14 @@ class Interfaces:
             host.create_subscription(JointCommand, f'~/commands/{kind}',
                                      self._command_callback(kind), 10)
             for kind in COMMAND_KINDS]
+        # Arms: a trajectory executed in the driver's cycle, and what ros2_control's topic
+        # bridge (JointStateTopicSystem) publishes as its commands.
+        self.subscriptions.append(host.create_subscription(
+            JointTrajectory, '~/joint_trajectory',
+            self._refusable('trajectory', host.submit_trajectory), 10))
+        self.subscriptions.append(host.create_subscription(
+            JointState, '~/joint_command', self._refusable('joint_command', host.joint_command),
+            10))
         self.services = [
             host.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
             for kind in COMMAND_KINDS]
@@ -77,6 +93,20 @@ class Interfaces:
             if not result.success:
                 log.error(f'{kind} command refused: {result.message}',
                           throttle_duration_sec=2.0)
+        return callback
+
+    def _refusable(self, what: str, take: Callable[[Any], str]) -> Callable[[Any], None]:
+        def callback(msg: Any) -> None:
+            log = self._host.get_logger()
+            if not self._host.active:
+                log.warning(f'{what} ignored: the node is not active', throttle_duration_sec=2.0)
+                return
+            try:
+                reason = take(msg)
+            except Exception as exc:  # noqa: B902 - a bad message must not stop the node
+                reason = f'internal error: {exc!r}'
+            if reason:
+                log.error(f'{what} refused: {reason}', throttle_duration_sec=1.0)
         return callback
 
     def _guard(self, response: Any, action: Callable[[], Any]) -> Any:

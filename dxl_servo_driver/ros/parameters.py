@@ -17,9 +17,9 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 # Parameters that may change while the node runs; the others are read at configure.
-RUNTIME_PARAMS = ('loop_rate', 'state_rate', 'command_timeout', 'temperature_warn',
-                  'temperature_error', 'voltage_low', 'voltage_high')
-THRESHOLDS = RUNTIME_PARAMS[3:]
+RUNTIME_PARAMS = ('loop_rate', 'state_rate', 'command_timeout', 'goal_tolerance',
+                  'temperature_warn', 'temperature_error', 'voltage_low', 'voltage_high')
+THRESHOLDS = RUNTIME_PARAMS[4:]
 RESTART_PARAMS = ('joints',)
 _PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
                 float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,

@@ -1,0 +1,196 @@
+"""
+Arms: trajectories executed in the driver's cycle, and ros2_control's joint-state commands.
+
+Everything runs on the in-process simulator (`port: sim`); positions are checked against the
+simulator's own registers and the published joint_states.
+"""
+
+import math
+import time
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+from builtin_interfaces.msg import Duration
+from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.units import units_for
+from node_harness import NodeHarness, sim_params
+import pytest
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+SEED = units_for(model_for(1030))
+JOINTS = {
+    'shoulder': {'id': 1, 'operating_mode': 'position'},
+    'elbow': {'id': 2, 'operating_mode': 'extended_position'},
+    'wrist': {'id': 3, 'operating_mode': 'current_based_position'},
+    'wheel': {'id': 4, 'operating_mode': 'velocity'},
+    'hand': {'id': 5, 'operating_mode': 'current'},
+}
+IDS = {name: keys['id'] for name, keys in JOINTS.items()}
+ARM = ('shoulder', 'elbow', 'wrist')
+
+
+@pytest.fixture(scope='module')
+def h() -> Any:
+    with NodeHarness(sim_params(JOINTS, loop_rate=100.0)) as harness:
+        harness.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+        yield harness
+
+
+def publisher(h: NodeHarness, kind: Any, topic: str) -> Any:
+    assert h.client is not None
+    pub = h.client.node.create_publisher(kind, f'{h.namespace}/dxl_servo_driver/{topic}', 10)
+    deadline = time.monotonic() + 10.0
+    while pub.get_subscription_count() < 1:
+        assert time.monotonic() < deadline, f'the driver does not subscribe to {topic}'
+        time.sleep(0.01)
+    return pub
+
+
+def trajectory(joints: Sequence[str], points: Sequence[Tuple[float, Sequence[float],
+                                                              Sequence[float]]]
+               ) -> JointTrajectory:
+    msg = JointTrajectory()
+    msg.joint_names = list(joints)
+    for t, positions, velocities in points:
+        point = JointTrajectoryPoint()
+        point.positions = [float(p) for p in positions]
+        point.velocities = [float(v) for v in velocities]
+        point.time_from_start = Duration(sec=int(t), nanosec=int(round((t % 1) * 1e9)))
+        msg.points.append(point)
+    return msg
+
+
+def position(h: NodeHarness, name: str) -> float:
+    return SEED.position_to_rad(h.reg(IDS[name], 'present_position'))
+
+
+def positions_now(h: NodeHarness) -> Dict[str, float]:
+    msg = h.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+    return dict(zip(msg.name, msg.position))
+
+
+def test_a_trajectory_is_followed_point_by_point(h: NodeHarness) -> None:
+    pub = publisher(h, JointTrajectory, 'joint_trajectory')
+    start = positions_now(h)
+    # Three joints (three position modes), cubic segments (velocities given) then linear.
+    plan = [(1.0, [0.4, 1.0, -0.3], [0.3, 0.5, 0.0]),
+            (2.0, [0.6, 2.5, -0.1], [0.0, 1.0, 0.1]),
+            (3.0, [0.2, 4.0, 0.2], [0.0, 0.0, 0.0])]
+    pub.publish(trajectory(ARM, plan))
+    began = time.monotonic()
+    errors: List[float] = []
+    for t, goal, _ in plan:
+        time.sleep(max(0.0, began + t - time.monotonic()))
+        errors.extend(abs(position(h, name) - value) for name, value in zip(ARM, goal))
+    print(f'tracking error at the points: max {max(errors):.4f} rad, '
+          f'mean {sum(errors) / len(errors):.4f} rad')
+    # The servos follow the sampled path with their own lag: a few hundredths of a radian.
+    assert max(errors) < 0.15, errors
+    time.sleep(0.8)   # after the end and its settle time
+    final = [abs(position(h, name) - value) for name, value in zip(ARM, plan[-1][1])]
+    print(f'final error {max(final):.4f} rad')
+    assert max(final) < 0.05, final
+    # The path passed through the points, not straight to the end: the elbow went up by 4 rad
+    # in three steps, the shoulder came back.
+    assert start['elbow'] < 1.0
+    status = bus_status(h)
+    assert int(status['trajectories_finished']) >= 1
+    assert float(status['last_trajectory_final_error_rad']) < 0.05
+
+
+def bus_status(h: NodeHarness) -> Dict[str, str]:
+    msg = h.diagnostics.wait(lambda m: any(' bus ' in s.name for s in m.status), timeout_s=5.0)
+    status = [s for s in msg.status if ' bus ' in s.name][0]
+    return {kv.key: kv.value for kv in status.values}
+
+
+REFUSALS = {
+    'velocity joint': (['shoulder', 'wheel'], [(1.0, [0.1, 0.1], [])], 'velocity mode'),
+    'unknown joint': (['shoulder', 'nose'], [(1.0, [0.1, 0.1], [])], "unknown joint 'nose'"),
+    'times going back': (['shoulder'], [(1.0, [0.1], []), (0.5, [0.2], [])], 'not after'),
+    'NaN': (['shoulder'], [(1.0, [math.nan], [])], 'nan'),
+    'beyond limits': (['shoulder'], [(1.0, [3.5], [])], 'beyond its limits'),
+    'ragged': (['shoulder', 'elbow'], [(1.0, [0.1], [])], '1 positions for 2 joints'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(REFUSALS))
+def test_a_bad_trajectory_is_refused_whole(h: NodeHarness, case: str) -> None:
+    joints, plan, reason = REFUSALS[case]
+    assert h.node is not None
+    time.sleep(0.1)
+    before = {name: h.reg(IDS[name], 'goal_position') for name in ARM}
+    accepted = h.node._trajectories.accepted
+    reply = h.node.submit_trajectory(trajectory(joints, plan))
+    assert reason in reply, reply
+    assert h.node._trajectories.accepted == accepted
+    time.sleep(0.1)
+    assert {name: h.reg(IDS[name], 'goal_position') for name in ARM} == before
+
+
+def test_a_new_trajectory_replaces_the_rest_of_the_running_one(h: NodeHarness) -> None:
+    pub = publisher(h, JointTrajectory, 'joint_trajectory')
+    here = position(h, 'elbow')
+    pub.publish(trajectory(['elbow'], [(2.0, [here + 3.0], [])]))
+    time.sleep(0.5)
+    middle = position(h, 'elbow')
+    assert here + 0.3 < middle < here + 1.5
+    # The new one starts from where the first had taken the joint, not from its start.
+    pub.publish(trajectory(['elbow'], [(0.5, [middle], [])]))
+    time.sleep(1.5)
+    assert abs(position(h, 'elbow') - middle) < 0.2
+    assert position(h, 'elbow') < here + 2.0   # the first one's end was never reached
+
+
+def joint_state(names: Sequence[str], positions: Sequence[float] = (),
+                velocities: Sequence[float] = (), efforts: Sequence[float] = ()) -> JointState:
+    msg = JointState()
+    msg.name = list(names)
+    msg.position = [float(v) for v in positions]
+    msg.velocity = [float(v) for v in velocities]
+    msg.effort = [float(v) for v in efforts]
+    return msg
+
+
+def test_joint_command_applies_each_array_by_mode(h: NodeHarness) -> None:
+    assert h.node is not None
+    pub = publisher(h, JointState, 'joint_command')
+    # What JointStateTopicSystem sends: every array index-aligned with name; a position-mode
+    # joint ignores its velocity and effort, a velocity joint takes velocity, a current joint
+    # takes effort / torque constant.
+    names = ['shoulder', 'wheel', 'hand', 'wrist']
+    pub.publish(joint_state(names, positions=[0.3, math.nan, math.nan, -0.2],
+                            velocities=[0.0, 1.5, 0.0, 0.0],
+                            efforts=[0.0, 0.0, 0.2, 0.4]))
+    kt = 4.1 / 2.3
+    h.wait_reg(IDS['shoulder'], 'goal_position', lambda v: v == SEED.position_from_rad(0.3))
+    h.wait_reg(IDS['wheel'], 'goal_velocity', lambda v: v == SEED.velocity_from_rad_s(1.5))
+    h.wait_reg(IDS['hand'], 'goal_current', lambda v: v == SEED.current_from_a(0.2 / kt))
+    h.wait_reg(IDS['wrist'], 'goal_current', lambda v: v == SEED.current_from_a(0.4 / kt))
+    h.wait_reg(IDS['wrist'], 'goal_position', lambda v: v == SEED.position_from_rad(-0.2))
+    # Empty arrays are not given at all.
+    assert h.node.joint_command(joint_state(['shoulder'], positions=[0.1])) == ''
+
+
+JOINT_COMMAND_REFUSALS = {
+    'NaN used': (joint_state(['shoulder'], positions=[math.nan]), 'not a finite'),
+    'wrong length': (joint_state(['shoulder', 'wheel'], positions=[0.1]), 'index-aligned'),
+    'nothing its mode takes': (joint_state(['wheel'], positions=[0.1]), 'takes velocity'),
+    'unknown': (joint_state(['nose'], positions=[0.1]), "unknown joint 'nose'"),
+    'empty': (joint_state(['shoulder']), 'no position, velocity or effort'),
+    'beyond range': (joint_state(['wheel'], velocities=[1e12]), 'out of any range'),
+}
+
+
+@pytest.mark.parametrize('case', sorted(JOINT_COMMAND_REFUSALS))
+def test_a_bad_joint_command_is_refused_whole(h: NodeHarness, case: str) -> None:
+    assert h.node is not None
+    msg, reason = JOINT_COMMAND_REFUSALS[case]
+    time.sleep(0.1)   # goals queued by an earlier test are written by now
+    before = {sid: (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_velocity'))
+              for sid in IDS.values()}
+    reply: Optional[str] = h.node.joint_command(msg)
+    assert reply and reason in reply, reply
+    time.sleep(0.05)
+    assert {sid: (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_velocity'))
+            for sid in IDS.values()} == before
