@@ -103,7 +103,8 @@ PARAMS: Tuple[ParamSpec, ...] = (
               0.0, 30.0),
 )
 PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in PARAMS}
-JOINT_KEYS = ('id', 'operating_mode', 'torque_constant', 'model')
+JOINT_KEYS = ('id', 'operating_mode', 'torque_constant', 'model', 'gripper', 'gripper_open',
+              'gripper_closed')
 # Parameters every rclpy node has.
 ROS_PARAMS = frozenset({'use_sim_time', 'start_type_description_service'})
 
@@ -120,6 +121,11 @@ class JointConfig:
     registers: Tuple[Tuple[str, int], ...] = ()
     # The model the servo must be (`<joint>.model`); None: any supported model.
     model: Optional[models.Model] = None
+    # A gripper (current_based_position): ~/gripper commands, grasp detection; a ratio goal
+    # runs from gripper_open (0) to gripper_closed (1), in rad.
+    gripper: bool = False
+    gripper_open: float = 0.0
+    gripper_closed: float = 0.0
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
@@ -273,13 +279,25 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         if given <= 0.0:
             raise ConfigError(key, f'must be positive, got {given}')
         torque_constant = given
+    key = f'{name}.gripper'
+    gripper = bool(_check_type(key, params.get(key, False), bool))
+    if gripper and mode != 'current_based_position':
+        raise ConfigError(key, f'a gripper holds with a limited current: its operating_mode must '
+                          f'be current_based_position, not {mode}')
+    ends = []
+    for end in ('open', 'closed'):
+        key = f'{name}.gripper_{end}'
+        if key in params and not gripper:
+            raise ConfigError(key, f'only a gripper (`{name}.gripper: true`) has this')
+        ends.append(float(_check_type(key, params.get(key, 0.0), float)))
     prefix = f'{name}.registers.'
     registers = []
     for key in sorted(k for k in params if k.startswith(prefix)):
         register = key[len(prefix):]
         value = _check_type(key, params[key], int)
         registers.append((register, value))
-    joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted)
+    joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
+                        gripper, ends[0], ends[1])
     # Without a model the seed's table judges the file now (a register only other models
     # have is judged at configure, against the model the servo answers with).
     problem = _check_registers(joint, wanted or models.model_for(ct.MODEL_NUMBER),

@@ -18,6 +18,7 @@ from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import trajectory as traj
 from dxl_servo_driver.commands import JointStateCommandError, split_joint_state
 from dxl_servo_driver.errors import DriverError, Interrupted
+from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
 from dxl_servo_driver.manager import Manager, ManagerError
 from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.cycle import CycleRunner
@@ -64,6 +65,8 @@ class DriverNode(LifecycleNode):
                                    self._prepare_goals)
         self._trajectories = traj.Executor(self._present_rad, self._trajectory_ended,
                                            self.config.goal_tolerance)
+        self._grasps = {joint.name: GraspDetector() for joint in self.config.joints
+                        if joint.gripper}
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.order)
@@ -189,6 +192,8 @@ class DriverNode(LifecycleNode):
             self.manager = self._new_manager(config)
             self.manager._port_factory = factory
             self._take_rates(config)
+            self._grasps = {joint.name: GraspDetector() for joint in config.joints
+                            if joint.gripper}
             self.get_logger().info('configure: using the parameters set since the last one')
         return True
 
@@ -388,6 +393,52 @@ class DriverNode(LifecycleNode):
                 return result.message
         return ''
 
+    def gripper_command(self, msg: Any) -> str:
+        """Queue a gripper goal (and its current); '' or why it was refused."""
+        servo = self.manager.servos.get(msg.name)
+        if servo is None:
+            return f'unknown joint {msg.name!r}'
+        if not servo.joint.gripper:
+            return f'joint {msg.name!r} is not a gripper (set {msg.name}.gripper: true)'
+        if servo.mode != 'current_based_position':
+            return f'gripper {msg.name!r} is in {servo.mode} mode, not current_based_position'
+        limit = servo.units.current_to_a(servo.limits.get('current_limit', 0))
+        spec = GripperSpec(servo.name, servo.joint.gripper_open, servo.joint.gripper_closed,
+                           limit)
+        try:
+            goal, current = gripper_goal(spec, msg.position, msg.ratio, msg.max_effort)
+        except GripperError as exc:
+            return str(exc)
+        goals = [('position', goal)] + ([('current', current)] if current is not None else [])
+        for kind, value in goals:
+            checked, reason = self.manager.check_goals(kind, [servo.name], [value])
+            if checked is None:
+                return reason
+        for kind, value in reversed(goals):   # the current first: never close with more
+            result = self.manager.command(kind, [servo.name], [value])
+            if not result.success:
+                return result.message
+        return ''
+
+    def _update_grasps(self, now_s: float) -> None:
+        for name, detector in self._grasps.items():
+            servo = self.manager.servos[name]
+            state = servo.state
+            goal_position = servo.goal_raw.get('goal_position')
+            goal_current = servo.goal_raw.get('goal_current')
+            if state is None or not servo.fresh or goal_position is None or goal_current is None:
+                continue
+            units = servo.units
+            was = detector.grasping
+            held = detector.update(
+                now_s, units.position_to_rad(state[0] + servo.turn_offset),
+                units.velocity_to_rad_s(state[1]), units.current_to_a(state[2]),
+                units.position_to_rad(goal_position + servo.turn_offset),
+                units.current_to_a(goal_current))
+            if held != was:
+                self.get_logger().info(f'gripper {name!r}: ' + (
+                    'holding an object' if held else 'no longer holding an object'))
+
     def _prepare_goals(self, now_s: float) -> None:
         goals = self._trajectories.step(now_s)
         if not goals:
@@ -409,6 +460,8 @@ class DriverNode(LifecycleNode):
 
     # publishing -----------------------------------------------------------------------------
     def _publish(self, stamp: Any, read_ok: bool) -> None:
+        if read_ok and self._grasps:
+            self._update_grasps(time.monotonic())
         if read_ok and self.joint_states_pub is not None:
             msg = self._joints.fill(stamp)
             if msg is not None:
@@ -417,7 +470,8 @@ class DriverNode(LifecycleNode):
         if self._state_period_s and now - self._last_state_s >= self._state_period_s:
             self._last_state_s = now
             if self.servo_states_pub is not None:
-                self.servo_states_pub.publish(servo_states(self.manager.order, stamp))
+                self.servo_states_pub.publish(servo_states(self.manager.order, stamp, {
+                    name: detector.grasping for name, detector in self._grasps.items()}))
 
     def _publish_diagnostics(self) -> None:
         try:
@@ -431,7 +485,8 @@ class DriverNode(LifecycleNode):
             self.diagnostics_pub.publish(diagnostics(
                 self.get_fully_qualified_name(), self.config, self.manager,
                 self._runner.facts(), self._lifecycle_state(), self._thresholds,
-                self.get_clock().now().to_msg(), extra))
+                self.get_clock().now().to_msg(), extra,
+                {name: detector.grasping for name, detector in self._grasps.items()}))
         except Exception as exc:  # noqa: B902 - a report must not stop the executor
             self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=10.0)
 

@@ -12,6 +12,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 from builtin_interfaces.msg import Duration
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
+from dxl_servo_driver_msgs.msg import GripperCommand
 from node_harness import NodeHarness, sim_params
 import pytest
 from sensor_msgs.msg import JointState
@@ -24,6 +25,8 @@ JOINTS = {
     'wrist': {'id': 3, 'operating_mode': 'current_based_position'},
     'wheel': {'id': 4, 'operating_mode': 'velocity'},
     'hand': {'id': 5, 'operating_mode': 'current'},
+    'claw': {'id': 6, 'operating_mode': 'current_based_position', 'gripper': True,
+             'gripper_open': 0.0, 'gripper_closed': 1.5},
 }
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
 ARM = ('shoulder', 'elbow', 'wrist')
@@ -46,9 +49,10 @@ def publisher(h: NodeHarness, kind: Any, topic: str) -> Any:
     return pub
 
 
-def trajectory(joints: Sequence[str], points: Sequence[Tuple[float, Sequence[float],
-                                                              Sequence[float]]]
-               ) -> JointTrajectory:
+Plan = Sequence[Tuple[float, Sequence[float], Sequence[float]]]
+
+
+def trajectory(joints: Sequence[str], points: Plan) -> JointTrajectory:
     msg = JointTrajectory()
     msg.joint_names = list(joints)
     for t, positions, velocities in points:
@@ -194,3 +198,65 @@ def test_a_bad_joint_command_is_refused_whole(h: NodeHarness, case: str) -> None
     time.sleep(0.05)
     assert {sid: (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_velocity'))
             for sid in IDS.values()} == before
+
+
+def gripper(name: str, position: float = math.nan, ratio: float = math.nan,
+            max_effort: float = math.nan) -> GripperCommand:
+    return GripperCommand(name=name, position=position, ratio=ratio, max_effort=max_effort)
+
+
+def claw_state(h: NodeHarness, predicate: Any, timeout_s: float = 10.0) -> Any:
+    msg = h.servo_states.wait(lambda m: any(s.name == 'claw' and predicate(s) for s in m.servos),
+                              timeout_s=timeout_s)
+    return [s for s in msg.servos if s.name == 'claw'][0]
+
+
+def test_a_gripper_closes_on_an_object_and_holds_it_without_overload(h: NodeHarness) -> None:
+    pub = publisher(h, GripperCommand, 'gripper')
+    sid = IDS['claw']
+    h.sim.set_load(sid, 3.0)   # an object the claw cannot push through at 0.3 A
+    pub.publish(gripper('claw', ratio=1.0, max_effort=0.3))
+    held = claw_state(h, lambda s: s.grasping)
+    assert held.position < 1.5 - 0.05 and held.hardware_error_status == 0
+    # Held for 3 s with the limited current: never the overload latch.
+    currents = []
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline:
+        assert h.reg(sid, 'hardware_error_status') == 0
+        currents.append(abs(SEED.current_to_a(h.reg(sid, 'present_current'))))
+        time.sleep(0.05)
+    print(f'holding: present current {min(currents):.3f}..{max(currents):.3f} A at a 0.3 A '
+          'limit, no hardware error')
+    assert max(currents) <= 0.3 * 1.1
+    assert h.reg(sid, 'goal_current') == SEED.current_from_a(0.3)
+    assert claw_state(h, lambda s: True).grasping
+    status = h.diagnostics.wait(lambda m: any(s.name.endswith(': claw') for s in m.status))
+    values = {kv.key: kv.value for kv in
+              [s for s in status.status if s.name.endswith(': claw')][0].values}
+    assert values['grasping'] == 'True'
+    # Let go: open (ratio 0) with the object gone, the grasp ends and the claw goes home.
+    h.sim.set_load(sid, 0.0)
+    pub.publish(gripper('claw', ratio=0.0))
+    claw_state(h, lambda s: not s.grasping and abs(s.position) < 0.05)
+
+
+GRIPPER_REFUSALS = {
+    'not a gripper': (gripper('wrist', ratio=0.5), 'not a gripper'),
+    'both goals': (gripper('claw', position=0.2, ratio=0.5), 'the other NaN'),
+    'no goal': (gripper('claw'), 'the other NaN'),
+    'ratio out of range': (gripper('claw', ratio=1.5), 'outside 0 (open) .. 1 (closed)'),
+    'too much current': (gripper('claw', ratio=0.5, max_effort=50.0), 'above the current limit'),
+    'unknown': (gripper('nose', ratio=0.5), "unknown joint 'nose'"),
+}
+
+
+@pytest.mark.parametrize('case', sorted(GRIPPER_REFUSALS))
+def test_a_bad_gripper_command_is_refused(h: NodeHarness, case: str) -> None:
+    assert h.node is not None
+    msg, reason = GRIPPER_REFUSALS[case]
+    time.sleep(0.1)
+    before = (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current'))
+    reply = h.node.gripper_command(msg)
+    assert reason in reply, reply
+    time.sleep(0.05)
+    assert (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current')) == before

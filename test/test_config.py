@@ -82,6 +82,20 @@ def test_operating_mode_defaults_to_position() -> None:
     ({'arm.registers.min_position_limit': 3000, 'arm.registers.max_position_limit': 1000},
      'arm.registers.min_position_limit', 'above'),
     ({'arm.registers.homing_offset': 2000}, 'arm.registers.homing_offset', '1024'),
+    # models: unknown names and numbers, modes and registers the named model lacks
+    ({'arm.model': 'XL-320'}, 'arm.model', 'no supported model is named'),
+    ({'arm.model': 350}, 'arm.model', 'XL-320'),
+    ({'arm.model': True}, 'arm.model', 'model name'),
+    ({'wheel.model': 'XL430-W250', 'wheel.operating_mode': 'current'}, 'wheel.operating_mode',
+     'has no current mode'),
+    ({'wheel.model': 'XL430-W250', 'wheel.registers.current_limit': 100},
+     'wheel.registers.current_limit', 'unknown register'),
+    ({'arm.registers.external_port_mode_9': 1}, 'arm.registers.external_port_mode_9',
+     'unknown register'),
+    # grippers hold with a limited current: current_based_position only
+    ({'arm.gripper': True}, 'arm.gripper', 'current_based_position'),
+    ({'arm.gripper_closed': 1.0}, 'arm.gripper_closed', 'only a gripper'),
+    ({'arm.gripper': 'yes'}, 'arm.gripper', 'true or false'),
 ])
 def test_invalid_configuration_names_the_key(change: Dict[str, Any], key: str,
                                              words: str) -> None:
@@ -96,6 +110,24 @@ def test_invalid_configuration_names_the_key(change: Dict[str, Any], key: str,
     assert info.value.key == key
     assert key in str(info.value)
     assert words in str(info.value)
+
+
+def test_models_and_grippers_are_read() -> None:
+    params = base()
+    params.update({'wheel.model': 'xl430-w250-t', 'arm.model': 1120,
+                   'arm.registers.external_port_mode_1': 1,
+                   'arm.operating_mode': 'current_based_position', 'arm.gripper': True,
+                   'arm.gripper_closed': 1.2})
+    config = validate(params)
+    assert config.joint('wheel').model.name == 'XL430-W250'
+    arm = config.joint('arm')
+    assert arm.model.name == 'XM540-W270' and arm.register_dict()['external_port_mode_1'] == 1
+    assert (arm.gripper, arm.gripper_open, arm.gripper_closed) == (True, 0.0, 1.2)
+    assert arm.torque_constant_nm_per_a is None   # the model's datasheet value at configure
+    # A register only other models have passes the file without a model (judged at configure).
+    params = base()
+    params['arm.registers.external_port_mode_1'] = 1
+    assert validate(params).joint('arm').register_dict()['external_port_mode_1'] == 1
 
 
 def test_every_parameter_has_a_description_and_a_valid_default() -> None:

@@ -34,7 +34,8 @@ def _values(pairs: Mapping[str, Any]) -> List[KeyValue]:
 
 def diagnostics(node_name: str, config: DriverConfig, manager: Manager, facts: CycleFacts,
                 lifecycle_state: str, thresholds: Mapping[str, float], stamp: Any,
-                extra: Optional[Mapping[str, Any]] = None) -> DiagnosticArray:
+                extra: Optional[Mapping[str, Any]] = None,
+                grasping: Optional[Mapping[str, bool]] = None) -> DiagnosticArray:
     """Return the bus status (with extra values) and every servo's."""
     array = DiagnosticArray()
     array.header.stamp = stamp
@@ -43,7 +44,10 @@ def diagnostics(node_name: str, config: DriverConfig, manager: Manager, facts: C
         bus.values.extend(_values(extra))
     array.status.append(bus)
     for servo in manager.order:
-        array.status.append(_servo_status(node_name, config, servo, thresholds))
+        status = _servo_status(node_name, config, servo, thresholds)
+        if grasping is not None and servo.name in grasping:
+            status.values.append(KeyValue(key='grasping', value=str(grasping[servo.name])))
+        array.status.append(status)
     return array
 
 

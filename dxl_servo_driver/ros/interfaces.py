@@ -10,7 +10,7 @@ from typing import Any, Callable, List, Protocol
 
 from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.tasks import Task
-from dxl_servo_driver_msgs.msg import JointCommand
+from dxl_servo_driver_msgs.msg import GripperCommand, JointCommand
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)
 from sensor_msgs.msg import JointState
@@ -49,6 +49,9 @@ class Host(Protocol):
     def joint_command(self, msg: JointState) -> str:
         """Queue a joint-state command; return '' or why it was refused."""
 
+    def gripper_command(self, msg: GripperCommand) -> str:
+        """Queue a gripper command; return '' or why it was refused."""
+
 
 class Interfaces:
     """The command topics (~/commands/<kind>) and services (~/set_<kind>, ~/reboot, ...)."""
@@ -67,6 +70,8 @@ class Interfaces:
         self.subscriptions.append(host.create_subscription(
             JointState, '~/joint_command', self._refusable('joint_command', host.joint_command),
             10))
+        self.subscriptions.append(host.create_subscription(
+            GripperCommand, '~/gripper', self._refusable('gripper', host.gripper_command), 10))
         self.services = [
             host.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
             for kind in COMMAND_KINDS]

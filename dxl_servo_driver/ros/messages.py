@@ -6,7 +6,7 @@ units through the servo's own model (models.units).
 """
 
 import math
-from typing import Any, List, Sequence, Tuple
+from typing import Any, List, Mapping, Optional, Sequence, Tuple
 
 from dxl_servo_driver.manager import (
     IDX_EFFORT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
@@ -57,12 +57,14 @@ class JointTable:
         return msg
 
 
-def servo_state(servo: Servo) -> ServoState:
+def servo_state(servo: Servo, grasping: bool = False) -> ServoState:
     """Return one servo's ServoState (NaN for what is not known)."""
     msg = ServoState()
     msg.name = servo.name
     msg.id = servo.servo_id
     msg.model_number = servo.model_number
+    msg.model = servo.model.name
+    msg.grasping = grasping
     msg.firmware_version = servo.firmware_version
     msg.operating_mode = servo.mode
     msg.comm_errors = min(servo.comm_errors, 2 ** 32 - 1)
@@ -93,9 +95,11 @@ def servo_state(servo: Servo) -> ServoState:
     return msg
 
 
-def servo_states(servos: Sequence[Servo], stamp: Any) -> ServoStateArray:
+def servo_states(servos: Sequence[Servo], stamp: Any,
+                 grasping: Optional[Mapping[str, bool]] = None) -> ServoStateArray:
     """Return the ServoStateArray of every configured servo."""
     msg = ServoStateArray()
     msg.header.stamp = stamp
-    msg.servos = [servo_state(servo) for servo in servos]
+    held = grasping or {}
+    msg.servos = [servo_state(servo, held.get(servo.name, False)) for servo in servos]
     return msg

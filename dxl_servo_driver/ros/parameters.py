@@ -73,6 +73,14 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
                  "Effort = current x this [N*m/A]; unset: the model's datasheet stall "
                  'torque / stall current (seed: 4.1 N*m at 2.3 A).',
                  ParameterType.PARAMETER_DOUBLE))
+        if joint.gripper:
+            entries += [
+                ('gripper', True, 'A gripper: ~/gripper commands, grasp detection.',
+                 ParameterType.PARAMETER_BOOL),
+                ('gripper_open', joint.gripper_open, 'Position of ratio 0 (open), rad.',
+                 ParameterType.PARAMETER_DOUBLE),
+                ('gripper_closed', joint.gripper_closed, 'Position of ratio 1 (closed), rad.',
+                 ParameterType.PARAMETER_DOUBLE)]
         if joint.model is not None:
             entries.append(
                 ('model', joint.model.name,
