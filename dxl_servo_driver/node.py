@@ -236,7 +236,22 @@ class DriverNode(LifecycleNode):
         self.get_logger().info(
             f'active: {len(self.manager.active_servos())} servos on {self.config.port} at '
             f'{self.config.baud_rate} bps, loop_rate {1.0 / self._runner.period_s:g} Hz')
+        if self.config.port == 'sim':
+            self._say_what_to_try()
         return super().on_activate(state)
+
+    def _say_what_to_try(self) -> None:
+        """On the simulated bus (make run), three commands a newcomer can paste next."""
+        ns = self.get_fully_qualified_name()
+        by_mode = {servo.mode: servo.name for servo in reversed(self.manager.order)}
+        lines = [f'ros2 topic echo {self.resolve_topic_name("joint_states")}']
+        # A velocity goal needs fresh commands when command_timeout is set: a stream.
+        for mode, how, value in (('position', '--once', 0.5), ('velocity', '-r 10', 1.0)):
+            if mode in by_mode:
+                lines.append(f'ros2 topic pub {how} {ns}/commands/{mode} '
+                             f'dxl_servo_driver_msgs/msg/JointCommand '
+                             f'"{{name: [{by_mode[mode]}], value: [{value}]}}"')
+        self.get_logger().info('try next:\n  ' + '\n  '.join(lines))
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Stop the cycle; torque off if torque_off_on_shutdown (ERROR after a cycle failure)."""

@@ -48,6 +48,7 @@ DEFAULT_PROTOCOL_TIMEOUT_MS = 50.0
 MAX_RETURN_DELAY_S = 254 * 2e-6
 READ_ATTEMPTS = 3
 SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
+LINUX_LATENCY_TIMER_MS = 16.0   # what an FTDI adapter's latency timer is unless set
 HINT = ('Usual causes: the servos have no power (the LED blinks once at power-up); they use a '
         'baud rate not tried (--baud) or an id not tried (--ids); they speak Protocol 1.0 '
         '(set protocol_version to 2, e.g. with Dynamixel Wizard); the data line or the adapter '
@@ -252,8 +253,9 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
         raise ValueError('no servo found: nothing to write')
     baud_bps = choose_baud(servos)
     params: Dict[str, Any] = {'port': port, 'baud_rate': baud_bps}
-    if latency_timer_ms is not None:
-        params['latency_timer'] = float(latency_timer_ms)
+    # The node's reply deadlines need it: what the adapter says, else the Linux default.
+    params['latency_timer'] = float(latency_timer_ms if latency_timer_ms is not None
+                                    else LINUX_LATENCY_TIMER_MS)
     comments = [describe(servo) for servo in servos]
     left_out: List[str] = []
     joints: List[str] = []
@@ -293,7 +295,8 @@ def _yaml_string(text: str) -> str:
     return "'" + text.replace("'", "''") + "'"
 
 
-def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], header: str) -> str:
+def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], header: str,
+                          latency_read: bool = True) -> str:
     """Return the ROS 2 parameter file (`/**: ros__parameters:`) for build_parameters' output."""
     lines = [f'# {header}']
     lines.extend(f'#   {comment}' for comment in comments)
@@ -302,7 +305,9 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
     lines.append(f'    port: {_yaml_string(params["port"])}')
     lines.append(f'    baud_rate: {params["baud_rate"]}')
     if 'latency_timer' in params:
-        lines.append(f'    latency_timer: {params["latency_timer"]}  # ms, read from the adapter')
+        source = 'read from the adapter' if latency_read else \
+            'not readable here: the Linux default (1 with our udev rule)'
+        lines.append(f'    latency_timer: {params["latency_timer"]}  # ms, {source}')
     lines.append(f'    joints: [{", ".join(params["joints"])}]')
     for joint in params['joints']:
         lines.append(f'    {joint}:')
@@ -401,7 +406,8 @@ def _output(args: argparse.Namespace, result: ScanResult, latency_ms: Optional[f
     header = (f'Written by `scan --port {args.port}` at {stamp}; run it with '
               f'`ros2 run dxl_servo_driver node --ros-args --params-file {args.output}`.')
     try:
-        _write_file(args.output, render_parameter_file(params, comments, header))
+        _write_file(args.output, render_parameter_file(params, comments, header,
+                                                       latency_ms is not None))
     except OSError as exc:
         print(f'scan: error: cannot write {args.output}: {exc.strerror or exc}', file=err)
         return EXIT_OUTPUT

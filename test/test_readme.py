@@ -18,6 +18,17 @@ def test_parameter_table_matches_the_code() -> None:
         '\n'.join(missing)
 
 
+def test_supported_servo_table_matches_the_models() -> None:
+    sys.path.insert(0, str(ROOT / 'tools'))
+    try:
+        from model_table import rows
+    finally:
+        sys.path.pop(0)
+    missing = [row for row in rows() if row not in README]
+    assert not missing, 'README servo table is out of date (tools/model_table.py):\n' + \
+        '\n'.join(missing)
+
+
 def test_readme_shows_every_topic_service_and_executable() -> None:
     for name in ('make run', 'make test', 'make bench', 'commands/position', 'commands/velocity',
                  'commands/current', 'commands/pwm', 'set_position', 'set_velocity', 'set_current',

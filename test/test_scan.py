@@ -160,6 +160,7 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
     assert len(out) == 2
     flat = flatten(yaml.safe_load(output.read_text()))
     assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'joints': ['joint_4', 'joint_9'],
+                    'latency_timer': 16.0,   # a pty has no latency timer: the Linux default
                     'joint_4.id': 4, 'joint_4.operating_mode': 'position',
                     'joint_4.model': 'XM430-W210',
                     'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position',
