@@ -9,7 +9,8 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 def test_messages_have_the_spec_fields() -> None:
-    from dxl_servo_driver_msgs.msg import JointCommand, ServoState, ServoStateArray
+    from dxl_servo_driver_msgs.msg import (
+        GripperCommand, JointCommand, ServoState, ServoStateArray)
     assert set(JointCommand.get_fields_and_field_types()) == {'name', 'value'}
     assert JointCommand.get_fields_and_field_types()['value'] == 'sequence<double>'
     state = ServoState.get_fields_and_field_types()
@@ -19,7 +20,11 @@ def test_messages_have_the_spec_fields() -> None:
         'velocity': 'double', 'current': 'double', 'pwm': 'double', 'input_voltage': 'double',
         'temperature': 'double', 'moving': 'boolean', 'moving_status': 'uint8',
         'hardware_error_status': 'uint8', 'hardware_errors': 'sequence<string>',
-        'comm_errors': 'uint32'}
+        'comm_errors': 'uint32',
+        # beyond SPEC's "at least": the model's name, a gripper's grasp
+        'model': 'string', 'grasping': 'boolean'}
+    assert GripperCommand.get_fields_and_field_types() == {
+        'name': 'string', 'position': 'double', 'ratio': 'double', 'max_effort': 'double'}
     assert ServoStateArray.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'servos': 'sequence<dxl_servo_driver_msgs/ServoState>'}
 

@@ -88,7 +88,7 @@ def test_valid_frames_with_random_contents_never_crash(
             check_reply(reply.data, set(range(253)))
         # The bus stays coherent: every servo still has a readable register file.
         for servo_id in bus.servo_ids():
-            assert len(bus.registers(servo_id)) == len(BY_NAME)
+            assert len(bus.registers(servo_id)) == len(bus.servo(servo_id).model.items)
 
 
 @given(instruction_packets(), st.data())
@@ -129,7 +129,7 @@ def test_memory_write_is_checked_and_atomic(address: int, payload: bytes, torque
         assert memory.snapshot() == before
         return
     for name in names:
-        item = BY_NAME[name]
+        item = memory.item(name)
         assert item.access == 'RW'
         assert item.minimum <= memory.get(name) <= item.maximum
         if item.area == 'eeprom':

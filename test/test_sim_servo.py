@@ -91,9 +91,10 @@ def test_write_led_status_bytes_and_effect(bench: Bench) -> None:
 
 
 def test_read_spanning_reserved_addresses_reads_zero(bench: Bench) -> None:
-    status = bench.one(1, Instruction.READ, struct.pack('<HH', 9, 5))
+    status = bench.one(1, Instruction.READ, struct.pack('<HH', 24, 8))
     assert status.error == 0
-    assert status.params == bytes((250, 0, 3, 0, 2))  # 9, reserved 10, 11, reserved 12, 13
+    # moving_threshold 10 (24..27), reserved 28..30, temperature_limit 80 (31)
+    assert status.params == bytes((10, 0, 0, 0, 0, 0, 0, 80))
 
 
 def test_read_errors(bench: Bench) -> None:
@@ -115,7 +116,7 @@ def test_unknown_instruction_and_status_instruction(bench: Bench) -> None:
 @pytest.mark.parametrize('params,code', [
     (write_params('model_number', 1), ErrorCode.ACCESS),          # read-only
     (write_params('present_position', 5), ErrorCode.ACCESS),
-    (bytes((10, 0, 1)), ErrorCode.ACCESS),                         # reserved address 10
+    (bytes((28, 0, 1)), ErrorCode.ACCESS),                         # reserved address 28
     (bytes((0x95, 0x02, 1, 1)), ErrorCode.ACCESS),                 # beyond the table (662)
     (bytes((116, 0, 1, 2)), ErrorCode.DATA_LENGTH),                # half of goal_position
     (bytes((65, 0)), ErrorCode.DATA_LENGTH),                       # no data

@@ -194,6 +194,31 @@ def test_control_lines(bus3: tuple[VirtualBusProcess, str],
     assert int(fields['replies']) >= 4  # the answered pings above
 
 
+def test_models_and_firmware_options(virtual_bus: StartVirtualBus,
+                                     handler: sdk.Protocol2PacketHandler) -> None:
+    vb = virtual_bus([1, 2], 1_000_000, extra_args=['--models', 'XL430-W250', '1200',
+                                                    '--firmware', '52'])
+    port = open_sdk_port(vb.device, 1_000_000)
+    try:
+        assert retried(lambda: handler.ping(port, 1)) == (1060, sdk.COMM_SUCCESS, 0)
+        assert retried(lambda: handler.ping(port, 2)) == (1200, sdk.COMM_SUCCESS, 0)
+        # Firmware 52: the X330's old table, Indirect Data 1 at 208 (pointing at itself).
+        assert retried(lambda: handler.read2ByteTxRx(port, 2, 168)) == (208, sdk.COMM_SUCCESS, 0)
+        # The XL430 has no Goal Current (102): access error.
+        assert retried(lambda: handler.write2ByteTxRx(port, 1, 102, 0)) == (sdk.COMM_SUCCESS, 7)
+    finally:
+        port.closePort()
+    assert vb.control('get 2 firmware_version') == 'ok get 2 firmware_version=52'
+    assert vb.control('get 1 126') == 'ok get 1 present_load=0'
+    # The start line names the models; it is on stderr, stdout's first line being the device.
+    start = f'virtual_bus: {vb.device}: id 1 XL430-W250 (model 1060, firmware 52), ' \
+            'id 2 XL330-M288 (model 1200, firmware 52)'
+    deadline_s = time.monotonic() + LINE_TIMEOUT_S
+    while start not in vb.stderr_text().splitlines():
+        assert time.monotonic() < deadline_s, vb.stderr_text()
+        time.sleep(0.01)
+
+
 def test_binary_garbage_on_stdin_is_one_error_line(virtual_bus: StartVirtualBus) -> None:
     vb = virtual_bus([1])
     assert vb.device is not None
@@ -341,6 +366,10 @@ def test_stale_link_of_ours_is_replaced(virtual_bus: StartVirtualBus,
     ['--ids', '1', '--latency-ms', '1'],        # latency without wire timing
     ['--ids', '1', '--return-delay-time', '255'],
     ['--ids', '1', '--trace-state', '/nonexistent/dir/state.txt'],
+    ['--ids', '1', '--models', 'XL999-W1'],     # no such model
+    ['--ids', '1', '2', '3', '--models', '1060', '1060'],   # neither one nor one per id
+    ['--ids', '1', '--models', 'XL330-M288', '--baud', '4500000'],  # above the X330's 4 Mbps
+    ['--ids', '1', '--firmware', '-1'],
 ])
 def test_bad_arguments_one_line_and_nonzero_exit(virtual_bus: StartVirtualBus,
                                                  args: list[str]) -> None:

@@ -7,17 +7,21 @@ order of the ids in the packet, for BULK_READ the order of its records, for a br
 ascending id.  Fault injection acts per servo object (found by its current id): a dropped status
 is lost, a corrupted one has one bit flipped after the header so the receiver's CRC check fails
 (CRC-16 catches every single-bit error).
+
+Each servo is of one model (models.Model, the seed's 1030 unless `models` says otherwise): its
+control table, its ping answer and its physics.
 """
 
 from dataclasses import dataclass
 import random
 import threading
 import time
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Mapping
 
-from dxl_servo_driver.control_table import BY_NAME
+from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import BROADCAST_ID, Instruction, Packet, StreamParser
 from dxl_servo_driver.sim.dynamics import ServoDynamics
+from dxl_servo_driver.sim.memory import SEED_MODEL
 from dxl_servo_driver.sim.servo import SimServo
 
 ERROR_KINDS: dict[str, int] = {
@@ -50,7 +54,16 @@ class SimBus:
     """Simulated servos sharing one bus."""
 
     def __init__(self, ids: Iterable[int], clock: Callable[[], float] = time.monotonic,
-                 seed: int | None = None, boot_time_s: float = 0.1) -> None:
+                 seed: int | None = None, boot_time_s: float = 0.1,
+                 models: Mapping[int, Model] | None = None,
+                 firmware: Mapping[int, int] | None = None) -> None:
+        """
+        Put servos with these ids on the bus.
+
+        models maps an id to its servo's model (the others are model 1030, the seed's);
+        firmware maps an id to the Firmware Version it reports (default: its model's), which
+        must be one that has that model's table. ValueError for a bad id or firmware.
+        """
         self.lock = threading.RLock()
         self._clock = clock
         self._random = random.Random(seed)
@@ -61,12 +74,21 @@ class SimBus:
         self.physics_lag_s = 0.0
         self.last_packet_s = float('-inf')
         now_s = clock()
+        ids = [int(servo_id) for servo_id in ids]
+        models = dict(models or {})
+        firmware = dict(firmware or {})
+        for what, mapping in (('models', models), ('firmware', firmware)):
+            strays = sorted(set(mapping) - set(ids))
+            if strays:
+                raise ValueError(f'{what} names ids {strays}, which are not on the bus {ids}')
         self._slots: list[_Slot] = []
         for servo_id in ids:
-            servo_id = int(servo_id)
             if not 0 <= servo_id <= 252:
                 raise ValueError(f'servo id {servo_id} outside 0..252')
-            servo = SimServo(servo_id, ServoDynamics(), now_s, boot_time_s=boot_time_s)
+            model = models.get(servo_id, SEED_MODEL)
+            servo = SimServo(servo_id, ServoDynamics(model=model), now_s,
+                             boot_time_s=boot_time_s, model=model,
+                             firmware_version=firmware.get(servo_id))
             self._slots.append(_Slot(servo))
 
     # ---- the wire -----------------------------------------------------------------------------
@@ -137,12 +159,18 @@ class SimBus:
 
     def read_register(self, servo_id: int, name: str) -> int:
         """Return one register of a servo, brought up to the clock's time."""
-        if name not in BY_NAME:
-            raise ValueError(f'no control-table item named {name!r}')
         with self.lock:
             servo = self._servo(servo_id)
+            if not servo.memory.has(name):
+                raise ValueError(f'servo {servo_id} ({servo.model.label}) has no control-table '
+                                 f'item named {name!r}')
             servo.advance(self._clock())
             return servo.memory.get(name)
+
+    def model(self, servo_id: int) -> Model:
+        """Return the model of the servo with this id."""
+        with self.lock:
+            return self._servo(servo_id).model
 
     def registers(self, servo_id: int) -> dict[str, int]:
         """Return every register of a servo by name, brought up to the clock's time."""

@@ -12,17 +12,18 @@ Commands (SPEC section 3, plus inspection):
   unplug ID / plug ID          servo leaves / rejoins the bus
   load ID NM                   resisting torque at the horn, N*m (>= 0)
   voltage ID VOLTS             input voltage, V (>= 0)
-  get ID NAME                  one register, by snake_case name or decimal address
+  get ID NAME                  one register, by snake_case name or decimal address (an address
+                               is looked up in that servo's model's table)
   dump ID                      every register, one line
   stats                        reply pacing statistics
   help                         this list
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 from typing import Callable, Protocol
 
-from dxl_servo_driver import control_table
+from dxl_servo_driver.models import ALL_MODELS, Model, model_for
 
 MAX_SERVO_ID = 252  # 253..255 are reserved / broadcast in Protocol 2.0
 ERROR_KINDS = ('overload', 'overheat', 'voltage', 'encoder', 'shock')
@@ -78,6 +79,10 @@ class ControlledBus(Protocol):
         """Read every register."""
         ...
 
+    def model(self, servo_id: int) -> Model:
+        """Return the servo's model."""
+        ...
+
     def set_drop(self, servo_id: int, probability: float) -> None:
         """Lose status packets."""
         ...
@@ -119,6 +124,9 @@ class Command:
     servo_id: int | None = None
     value: float | None = None      # probability, N*m or volts
     text: str | None = None         # error kind or register name (addresses resolved to names)
+    # The address a register was named by: resolved again against the servo's own model when
+    # the line runs (126 is present_current on most models, present_load on an XL430).
+    address: int | None = field(default=None, compare=False)
 
 
 def _parse_id(token: str) -> int:
@@ -141,14 +149,24 @@ def _parse_float(token: str, what: str) -> float:
     return value
 
 
-def _parse_register(token: str) -> str:
-    key: str | int = int(token, 10) if token.isdigit() else token.lower()
-    try:
-        return control_table.lookup(key).name
-    except KeyError:
-        if isinstance(key, int):
-            raise ControlError(f'no register starts at address {key}')
+# The tables a register name or address is looked up in: the seed's model first.
+_TABLES: tuple[Model, ...] = (model_for(1030), *ALL_MODELS)
+
+
+def _parse_register(token: str) -> tuple[str, int | None]:
+    """Return (name, address the token gave or None) of a register some supported model has."""
+    if token.isdigit():
+        address = int(token, 10)
+        for table in _TABLES:
+            try:
+                return table.by_address(address).name, address
+            except KeyError:
+                continue
+        raise ControlError(f'no register starts at address {address}')
+    name = token.lower()
+    if not any(table.has(name) for table in _TABLES):
         raise ControlError(f'unknown register {token!r}')
+    return name, None
 
 
 def parse(line: str) -> Command:
@@ -166,6 +184,7 @@ def parse(line: str) -> Command:
     servo_id: int | None = None
     value: float | None = None
     text: str | None = None
+    address: int | None = None
     for kind, token in zip(signature, args):
         if kind == 'id':
             servo_id = _parse_id(token)
@@ -184,8 +203,8 @@ def parse(line: str) -> Command:
                 raise ControlError(
                     f'bad error kind {token!r}: expected one of {"|".join(ERROR_KINDS)}')
         else:  # 'register'
-            text = _parse_register(token)
-    return Command(name, servo_id, value, text)
+            text, address = _parse_register(token)
+    return Command(name, servo_id, value, text, address)
 
 
 def execute(command: Command, bus: ControlledBus,
@@ -229,8 +248,8 @@ def execute(command: Command, bus: ControlledBus,
             bus.set_voltage(sid, command.value)
             return f'ok voltage {sid} {command.value:g}'
         elif name == 'get':
-            assert command.text is not None
-            return f'ok get {sid} {command.text}={bus.read_register(sid, command.text)}'
+            register = _register_of(command, bus, sid)
+            return f'ok get {sid} {register}={bus.read_register(sid, register)}'
         elif name == 'dump':
             regs = bus.registers(sid)
             return f'ok dump {sid} ' + ' '.join(f'{k}={v}' for k, v in regs.items())
@@ -243,6 +262,19 @@ def execute(command: Command, bus: ControlledBus,
         raise ControlError(_message(exc)) from exc
     except ValueError as exc:
         raise ControlError(_message(exc)) from exc
+
+
+def _register_of(command: Command, bus: ControlledBus, servo_id: int) -> str:
+    """Return the register a get names, an address looked up in the servo's model's table."""
+    assert command.text is not None
+    if command.address is None:
+        return command.text
+    model = bus.model(servo_id)
+    try:
+        return model.by_address(command.address).name
+    except KeyError:
+        raise ControlError(f'servo {servo_id} ({model.label}) has no register starting at '
+                           f'address {command.address}') from None
 
 
 def handle_line(line: str, bus: ControlledBus,

@@ -1,18 +1,23 @@
 """
-Physics, controllers and profiles of one simulated XM430-class servo.
+Physics, controllers and profiles of one simulated servo of any supported model.
 
 The servo (helper CORE) owns the control table and calls ServoDynamics: advance() runs the
-controllers and the motor for a time span, the on_* hooks react to writes. Choices where the seed
-is silent or ambiguous (see also motor.py and velocity_profile.py):
+controllers and the motor for a time span, the on_* hooks react to writes. The model (the seed's
+1030 by default) gives the motor (motor.motor_for), the units of the registers and the supply
+the servo starts at (its nominal voltage). Choices where the seed is silent or ambiguous (see
+also motor.py and velocity_profile.py):
 
 * Control period 1 ms: advance() runs whole periods and carries the remainder to the next call.
   While the servo is frozen (horn stuck by friction or load, constant output, no profile running,
   integrators idle) the rest of a span is jumped in one go, so an idle hour costs microseconds.
 * Gain conversions of the seed (KpP = P/128, KpI = I/65536, KpD = D/16, Kff1 = FF1/4,
   Kff2 = FF2/4, KvP = P/128, KvI = I/65536; the seed's "65563" is read as 65536); every output
-  is in PWM raw units (885 = 100 %). Position error in pulses, its derivative and the velocity
+  is in PWM raw units (885 = 100 %). Position error in pulses, its derivative in pulses per 1 ms
+  sample (the manual: "the constant in each equation includes sampling time"), the velocity
   feed-forward in velocity units (0.229 rpm), the acceleration feed-forward in acceleration units,
-  integrals sum the error once per 1 ms sample. The velocity loop takes its error in pulse/s
+  integrals sum the error once per 1 ms sample. Per sample, the XL430's default D gain (4000)
+  damps it near critically (zeta ~1.2); in velocity units, 64 times stronger, it would make the
+  loop unstable at a 1 ms sample. The velocity loop takes its error in pulse/s
   (velocity units times beta = 15.63, the seed's "conversion coefficient of position and
   velocity"), which makes the default gains (P 50, I 1920) settle in tens of ms.
 * Anti-windup: an integrator does not integrate while the output is saturated in the direction
@@ -35,13 +40,20 @@ is silent or ambiguous (see also motor.py and velocity_profile.py):
 * Torque on holds the present position (the trajectory restarts there); a goal written with
   torque off is not acted on. Torque off is free-run: the windings are open, no current flows,
   the horn coasts until friction and load stop it.
+* Models without current sensing (XL430, XC430 and their two-axis versions) report Present Load
+  instead of Present Current: the motor's torque at the horn (K_t i) as a share of the stall
+  torque of the simulated motor at the present supply, in 0.1 % and within +-100 %, so a full-PWM
+  stall reads 1000 at any supply. They have no Goal Current nor Current Limit: nothing but the
+  PWM limits their current.
 """
 
 import math
 import struct
 from typing import Optional, Protocol
 
+from dxl_servo_driver.models import Model
 from dxl_servo_driver.sim import motor
+from dxl_servo_driver.sim.memory import SEED_MODEL
 from dxl_servo_driver.sim.velocity_profile import (
     plan_position, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ramp_velocity)
 
@@ -67,9 +79,6 @@ ERROR_INPUT_VOLTAGE = 0x01
 ERROR_OVERHEATING = 0x04
 ERROR_OVERLOAD = 0x20
 
-_VELOCITY_UNIT_PER_RAD_S = motor.rad_s_to_rpm(1.0) / motor.RPM_PER_VELOCITY_UNIT
-# beta: pulse/s per velocity unit, used by the velocity loop.
-_BETA_PULSE_S_PER_UNIT = motor.RPM_PER_VELOCITY_UNIT * motor.PULSES_PER_REV / 60.0
 _INT32_MIN = -(1 << 31)
 _INT32_MAX = (1 << 31) - 1
 
@@ -95,6 +104,29 @@ _PRESENT_BLOCK_ADDRESS = 122
 _PRESENT_NAMES = ('moving', 'moving_status', 'present_pwm', 'present_current',
                   'present_velocity', 'present_position', 'velocity_trajectory',
                   'position_trajectory', 'present_input_voltage', 'present_temperature')
+# Where each of them sits in the block: (offset, size, signed).
+_PRESENT_SLOTS = ((0, 1, False), (1, 1, False), (2, 2, True), (4, 2, True), (6, 4, True),
+                  (10, 4, True), (14, 4, True), (18, 4, True), (22, 2, False), (24, 1, False))
+
+
+def _present_names(model: Model) -> tuple[str, ...]:
+    """Return the present registers of a model, Present Load in place of Present Current."""
+    if model.has('present_current'):
+        return _PRESENT_NAMES
+    return tuple('present_load' if name == 'present_current' else name
+                 for name in _PRESENT_NAMES)
+
+
+def _block_fits(model: Model, names: tuple[str, ...]) -> bool:
+    """Return whether the model keeps the present registers in the seed's contiguous block."""
+    for name, (offset, size, signed) in zip(names, _PRESENT_SLOTS):
+        if not model.has(name):
+            return False
+        item = model.item(name)
+        if (item.address, item.size, item.signed) != (
+                _PRESENT_BLOCK_ADDRESS + offset, size, signed):
+            return False
+    return True
 
 
 def _homing_offset(regs: 'RegisterStore') -> int:
@@ -118,12 +150,29 @@ def _clamp_int(value: float, low: int, high: int) -> int:
 class ServoDynamics:
     """Motor, gearbox, controllers, profiles and thermal model of one servo."""
 
-    def __init__(self, input_voltage_v: float = 12.0, ambient_c: float = 25.0,
-                 start_position_pulse: float = 2048.0) -> None:
+    def __init__(self, input_voltage_v: float | None = None, ambient_c: float = 25.0,
+                 start_position_pulse: float = 2048.0, model: Model | None = None) -> None:
+        model = SEED_MODEL if model is None else model
+        self.model = model
+        self.motor = motor.motor_for(model)
+        self._pulses_per_rev = model.pulses_per_rev
+        self._pulse_per_rad = model.pulses_per_rev / (2.0 * math.pi)
+        self._velocity_unit_per_rad_s = motor.rad_s_to_rpm(1.0) / model.velocity_unit_rpm
+        # beta: pulse/s per velocity unit, used by the velocity loop.
+        self._beta_pulse_s_per_unit = model.velocity_unit_rpm * model.pulses_per_rev / 60.0
+        self._pwm_full_raw = model.pwm_full_raw
+        self._volt_per_unit = model.voltage_unit_v
+        # Current sensing (A per count), or None: Present Load (share of the stall torque).
+        self._ampere_per_unit = model.current_unit_a
+        self._load_per_unit = model.load_unit_ratio
+        self._present_names = _present_names(model)
+        self._pack_block = _block_fits(model, self._present_names)
         self.horn_position_pulse = float(start_position_pulse)
         self.current_a = 0.0
         self.temperature_c = float(ambient_c)
         self.ambient_c = float(ambient_c)
+        if input_voltage_v is None:
+            input_voltage_v = model.physics.nominal_voltage_v
         self.input_voltage_v = max(0.0, float(input_voltage_v))
         self.load_nm = 0.0
         self.duty = 0.0
@@ -140,12 +189,12 @@ class ServoDynamics:
     @property
     def velocity_pulse_s(self) -> float:
         """Horn velocity in pulse/s."""
-        return self._omega_rad_s * motor.PULSE_PER_RAD
+        return self._omega_rad_s * self._pulse_per_rad
 
     @property
     def motor_torque_nm(self) -> float:
         """Electromagnetic torque at the horn (before friction and load)."""
-        return motor.TORQUE_CONSTANT_NM_A * self.current_a
+        return self.motor.torque_constant_nm_a * self.current_a
 
     # ----------------------------------------------------------------- hooks
     def set_load(self, load_nm: float) -> None:
@@ -177,7 +226,7 @@ class ServoDynamics:
         self._torque_on = bool(enabled)
         self.reset_controllers()
         if self._torque_on:
-            self._vel_traj_raw = self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S
+            self._vel_traj_raw = self._omega_rad_s * self._velocity_unit_per_rad_s
         else:
             self.duty = 0.0
             self.current_a = 0.0
@@ -213,8 +262,8 @@ class ServoDynamics:
 
     def reinit_present_position(self, regs: RegisterStore) -> None:
         """Present position := horn position within one turn + homing offset."""
-        turns = math.floor(self.horn_position_pulse / motor.PULSES_PER_REV)
-        self._turn_offset_pulse = -motor.PULSES_PER_REV * turns
+        turns = math.floor(self.horn_position_pulse / self._pulses_per_rev)
+        self._turn_offset_pulse = -self._pulses_per_rev * turns
         regs.set('present_position', self._present_position_raw(_homing_offset(regs)))
 
     # ----------------------------------------------------------------- simulation
@@ -255,28 +304,31 @@ class ServoDynamics:
             mean_i2 = sum_i2 / steps
         else:
             mean_i2 = self.current_a * self.current_a
-        self.temperature_c = motor.thermal_step(
-            self.temperature_c, self.ambient_c, motor.heat_power_w(mean_i2, volts), dt_s)
+        fitted = self.motor
+        self.temperature_c = fitted.thermal_step(
+            self.temperature_c, self.ambient_c, fitted.heat_power_w(mean_i2, volts), dt_s)
         return self._publish(regs, mode, torque_on, overloaded_span)
 
     def _run(self, steps: int, regs: RegisterStore, mode: Optional[int], torque_on: bool,
              volts: float) -> tuple[float, bool]:
         """Run whole control periods; return (sum of i^2 over the periods, overload seen)."""
         get = regs.get
+        fitted = self.motor
         dt = CONTROL_PERIOD_S
         dt_ms = dt * 1000.0
-        r_ohm = motor.RESISTANCE_OHM
-        kt = motor.TORQUE_CONSTANT_NM_A
-        ke = motor.BACK_EMF_V_S_RAD
-        c1 = dt / motor.INERTIA_KG_M2
+        r_ohm = fitted.resistance_ohm
+        kt = fitted.torque_constant_nm_a
+        ke = fitted.back_emf_v_s_rad
+        c1 = dt / fitted.inertia_kg_m2
         ktr = kt / r_ohm
-        damping = (kt * ke / r_ohm + motor.VISCOUS_FRICTION_NM_S_RAD) if torque_on \
-            else motor.VISCOUS_FRICTION_NM_S_RAD
+        damping = (kt * ke / r_ohm + fitted.viscous_friction_nm_s_rad) if torque_on \
+            else fitted.viscous_friction_nm_s_rad
         denominator = 1.0 + c1 * damping
-        friction = motor.COULOMB_FRICTION_NM + self.load_nm
-        pulse_per_rad_dt = motor.PULSE_PER_RAD * dt
-        unit_per_rad_s = _VELOCITY_UNIT_PER_RAD_S
-        full = float(motor.PWM_FULL_RAW)
+        friction = fitted.coulomb_friction_nm + self.load_nm
+        pulse_per_rad_dt = self._pulse_per_rad * dt
+        pulse_per_rad_ms = self._pulse_per_rad / 1000.0
+        unit_per_rad_s = self._velocity_unit_per_rad_s
+        full = float(self._pwm_full_raw)
         volts_eff = volts if volts > 1e-6 else 1e-6
         overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
 
@@ -284,10 +336,16 @@ class ServoDynamics:
         out_limit = float(min(abs(get('goal_pwm')), pwm_limit))
         if mode == MODE_PWM:
             out_limit = float(pwm_limit)
-        current_limit_a = min(abs(get('goal_current')), max(0, get('current_limit'))) \
-            * motor.AMPERE_PER_CURRENT_UNIT
-        goal_current_a = max(-current_limit_a, min(current_limit_a, get('goal_current')
-                                                   * motor.AMPERE_PER_CURRENT_UNIT))
+        ampere_per_unit = self._ampere_per_unit
+        if ampere_per_unit is None:
+            # No Goal Current nor Current Limit (nor the modes that use them) on this model.
+            current_limit_a = math.inf
+            goal_current_a = 0.0
+        else:
+            current_limit_a = min(abs(get('goal_current')), max(0, get('current_limit'))) \
+                * ampere_per_unit
+            goal_current_a = max(-current_limit_a, min(current_limit_a, get('goal_current')
+                                                       * ampere_per_unit))
         goal_pwm = float(max(-pwm_limit, min(pwm_limit, get('goal_pwm'))))
         position_mode = mode in POSITION_MODES
         kpp = kpi = kpd = kff1 = kff2 = kvp = kvi = 0.0
@@ -300,8 +358,8 @@ class ServoDynamics:
             kff1 = get('feedforward_1st_gain') / 4.0
             kff2 = get('feedforward_2nd_gain') / 4.0
         elif mode == MODE_VELOCITY:
-            kvp = get('velocity_p_gain') / 128.0 * _BETA_PULSE_S_PER_UNIT
-            kvi = get('velocity_i_gain') / 65536.0 * _BETA_PULSE_S_PER_UNIT
+            kvp = get('velocity_p_gain') / 128.0 * self._beta_pulse_s_per_unit
+            kvi = get('velocity_i_gain') / 65536.0 * self._beta_pulse_s_per_unit
             goal_velocity = float(get('goal_velocity'))
             acceleration_raw = get('profile_acceleration')
 
@@ -348,7 +406,7 @@ class ServoDynamics:
                 error = traj_p - pos
                 traj_v_raw = traj_v * 64.0
                 demand = kpp * error + kpi * pos_integral \
-                    + kpd * (traj_v_raw - omega * unit_per_rad_s) \
+                    + kpd * (traj_v - omega * pulse_per_rad_ms) \
                     + kff1 * traj_v_raw + kff2 * traj_a * 4096.0
                 if mode == MODE_CURRENT_BASED_POSITION:
                     target_a = (demand / full * volts - ke * omega) / r_ohm
@@ -442,15 +500,17 @@ class ServoDynamics:
         self._vel_traj_raw = vel_traj
         return sum_i2, overload_seen
 
-    @staticmethod
-    def _predict_omega(omega: float, current_a: float, friction_nm: float, c1: float) -> float:
+    def _predict_omega(self, omega: float, current_a: float, friction_nm: float,
+                       c1: float) -> float:
         """
         Speed at the end of the period if current_a flows (current loop's back-EMF estimate).
 
         A real current loop runs far faster than the 1 ms period; anticipating the speed change
         keeps the held current exact while the horn accelerates.
         """
-        torque = motor.TORQUE_CONSTANT_NM_A * current_a - motor.VISCOUS_FRICTION_NM_S_RAD * omega
+        fitted = self.motor
+        torque = fitted.torque_constant_nm_a * current_a \
+            - fitted.viscous_friction_nm_s_rad * omega
         if omega > 0.0:
             torque -= friction_nm
         elif omega < 0.0:
@@ -461,18 +521,30 @@ class ServoDynamics:
             torque -= math.copysign(friction_nm, torque)
         return omega + c1 * torque
 
+    def _load_raw(self) -> int:
+        """Return Present Load: the motor's torque over the stall torque at the present supply."""
+        ratio = self._load_per_unit or 0.001
+        full = round(1.0 / ratio)
+        stall_nm = self.motor.stall_torque_nm(self.input_voltage_v)
+        if stall_nm <= 0.0:
+            return 0  # no supply worth the name: no torque to be a share of
+        return _clamp_int(self.motor_torque_nm / stall_nm / ratio, -full, full)
+
     def _publish(self, regs: RegisterStore, mode: Optional[int], torque_on: bool,
                  overloaded_span: bool) -> int:
         """Write the present registers; return the detected error bits."""
         get = regs.get
         homing = _homing_offset(regs)
         offset = self._turn_offset_pulse + homing
-        velocity_raw = _clamp_int(self._omega_rad_s * _VELOCITY_UNIT_PER_RAD_S,
+        velocity_raw = _clamp_int(self._omega_rad_s * self._velocity_unit_per_rad_s,
                                   _INT32_MIN, _INT32_MAX)
         position_raw = self._present_position_raw(homing)
-        current_raw = _clamp_int(self.current_a / motor.AMPERE_PER_CURRENT_UNIT, -32768, 32767)
-        pwm_raw = _clamp_int(self.duty * motor.PWM_FULL_RAW, -32768, 32767)
-        voltage_raw = _clamp_int(self.input_voltage_v / motor.VOLT_PER_VOLTAGE_UNIT, 0, 65535)
+        if self._ampere_per_unit is not None:
+            current_raw = _clamp_int(self.current_a / self._ampere_per_unit, -32768, 32767)
+        else:
+            current_raw = self._load_raw()
+        pwm_raw = _clamp_int(self.duty * self._pwm_full_raw, -32768, 32767)
+        voltage_raw = _clamp_int(self.input_voltage_v / self._volt_per_unit, 0, 65535)
         temperature_raw = _clamp_int(self.temperature_c, 0, 255)
 
         position_mode = mode in POSITION_MODES
@@ -503,12 +575,12 @@ class ServoDynamics:
         values = (moving, status, pwm_raw, current_raw, velocity_raw, position_raw,
                   velocity_trajectory, position_trajectory, voltage_raw, temperature_raw)
         raw = getattr(regs, 'raw', None)
-        if isinstance(raw, bytearray):
+        if self._pack_block and isinstance(raw, bytearray):
             # Moving (122) .. Present Temperature (146) are one contiguous run of the table:
             # one pack instead of ten register writes (this runs for every servo, every 1 ms).
             _PRESENT_BLOCK.pack_into(raw, _PRESENT_BLOCK_ADDRESS, *values)
         else:
-            for name, value in zip(_PRESENT_NAMES, values):
+            for name, value in zip(self._present_names, values):
                 regs.set(name, value)
 
         errors = 0

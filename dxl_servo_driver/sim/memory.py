@@ -1,6 +1,11 @@
 """
 One simulated servo's control-table memory: EEPROM and RAM, access, ranges, limits, indirection.
 
+The layout is the servo's model's (models.Model; the seed's model 1030 by default): its items,
+its reserved addresses (read 0, a write is an access error), its operating modes (another value
+is a data range error) and its indirect banks. Each model's layout is compiled once (Table) and
+shared by every servo of that model.
+
 Two ways in:
 - get()/set() by name: raw internal access for the physics and the servo's own bookkeeping
   (no access or range checks), the register store protocol of interfaces.md;
@@ -10,19 +15,20 @@ Two ways in:
 """
 
 import struct
+from typing import Callable
 
 from dxl_servo_driver.control_table import (
-    BY_NAME, EEPROM_END, EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT,
-    indirect_address_address, INDIRECT_COUNT, indirect_data_address, Item, ITEMS,
-    OPERATING_MODES, TABLE_SIZE)
+    EEPROM_END, EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, Item, TABLE_SIZE)
+from dxl_servo_driver.models import Model, model_for, ModelError
 from dxl_servo_driver.protocol import ErrorCode
 
 _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
             (4, False): '<I', (4, True): '<i'}
-_VALID_MODES = frozenset(OPERATING_MODES.values())
-_POSITION_MODE = OPERATING_MODES['position']
-_MULTI_TURN_MODES = frozenset((OPERATING_MODES['extended_position'],
-                               OPERATING_MODES['current_based_position']))
+_U16 = struct.Struct('<H')
+# Goal PWM / Goal Current power on at these (EEPROM) limits, where the model has them.
+_GOALS_FROM_LIMITS = (('goal_pwm', 'pwm_limit'), ('goal_current', 'current_limit'))
+SEED_MODEL = model_for(1030)
+_SEED_NUMBERS = frozenset((1020, 1030))  # the seed's control table, plus later items
 
 
 class TableError(Exception):
@@ -33,65 +39,160 @@ class TableError(Exception):
         self.code = code
 
 
-# address -> the item covering it (None for reserved addresses)
-_OWNER: list[Item | None] = [None] * TABLE_SIZE
-for _item in ITEMS:
-    for _offset in range(_item.size):
-        _OWNER[_item.address + _offset] = _item
-# indirect data address -> address of the indirect address item that maps it
-_INDIRECT_DATA_TO_ADDRESS: dict[int, int] = {
-    indirect_data_address(n): indirect_address_address(n) for n in range(1, INDIRECT_COUNT + 1)}
-_INDIRECT_DATA_LOW = min(_INDIRECT_DATA_TO_ADDRESS)
-_STRUCTS: dict[str, struct.Struct] = {
-    item.name: struct.Struct(_FORMATS[(item.size, item.signed)]) for item in ITEMS}
-_U16 = struct.Struct('<H')
-# The indirect address registers (bank 1: 168..223, bank 2: 578..633) and bank 2's data.
-_INDIRECT_MAP_LOW, _INDIRECT_MAP_HIGH = indirect_address_address(1), indirect_data_address(1)
-_UPPER_MAP_LOW = indirect_address_address(29)
-_UPPER_MAP_HIGH = indirect_data_address(29)
-_UPPER_BANK_LOW = indirect_data_address(29)
-# name -> (unpack_from, address): get() runs tens of times per servo per millisecond.
-_GETTERS = {item.name: (_STRUCTS[item.name].unpack_from, item.address) for item in ITEMS}
+class Table:
+    """
+    One model's control table laid out for the simulator: built once per model (table_for).
+
+    A bus may hold fifty servos of one model; they share this rather than each building it.
+    """
+
+    def __init__(self, model: Model) -> None:
+        self.model = model
+        self.by_name: dict[str, Item] = {item.name: item for item in model.items}
+        # The seed's table reaches 661 (its second indirect bank); its models never end sooner.
+        self.size = max(model.table_end, TABLE_SIZE) if model.number in _SEED_NUMBERS \
+            else model.table_end
+        # address -> the item covering it (None for reserved addresses)
+        self.owner: list[Item | None] = [None] * self.size
+        for item in model.items:
+            for offset in range(item.size):
+                self.owner[item.address + offset] = item
+        self.structs: dict[str, struct.Struct] = {
+            item.name: struct.Struct(_FORMATS[(item.size, item.signed)]) for item in model.items}
+        # name -> (unpack_from, address) and (pack_into, address, mask, wrap threshold):
+        # get() and set() run tens of times per servo per millisecond.
+        self.getters = {item.name: (self.structs[item.name].unpack_from, item.address)
+                        for item in model.items}
+        self.setters = {item.name: self._setter(item) for item in model.items}
+        # indirect data address -> address of the indirect address item that maps it
+        self.indirect: dict[int, int] = {data: address for address, data in model.indirect}
+        self.indirect_low = min(self.indirect, default=self.size)
+        self.banks = _banks(model.indirect)
+        self.valid_modes = frozenset(model.modes.values())
+        self.position_mode = model.modes.get('position')
+        self.multi_turn_modes = frozenset(
+            model.modes[name] for name in ('extended_position', 'current_based_position')
+            if name in model.modes)
+        self.eeprom = tuple(item for item in model.items if item.area == 'eeprom')
+        self.ram_initial = tuple((item.name, item.initial) for item in model.items
+                                 if item.area == 'ram' and item.initial)
+        self.goals_from_limits = tuple(
+            (goal, limit) for goal, limit in _GOALS_FROM_LIMITS
+            if goal in self.by_name and limit in self.by_name)
+        self.torque_address = self.by_name['torque_enable'].address
+        self.homing = self.by_name['homing_offset']
+
+    def _setter(self, item: Item) -> tuple[Callable[..., None], int, int, int]:
+        bits = 8 * item.size
+        modulus = 1 << bits
+        threshold = 1 << (bits - 1) if item.signed else modulus
+        return self.structs[item.name].pack_into, item.address, modulus - 1, threshold
+
+
+def _banks(pairs: tuple[tuple[int, int], ...]) -> tuple[tuple[int, int, int], ...]:
+    """
+    Return the indirect banks as (first data address, first address entry, end of the entries).
+
+    A bank is a run of entries 2 bytes apart whose data bytes follow one another (the X430 has
+    two: 168.. with data at 224.., and 578.. with data at 634..).
+    """
+    banks: list[list[int]] = []
+    previous: tuple[int, int] | None = None
+    for address, data in pairs:
+        if previous is not None and address == previous[0] + 2 and data == previous[1] + 1:
+            banks[-1][2] = address + 2
+        else:
+            banks.append([data, address, address + 2])
+        previous = (address, data)
+    return tuple((data, low, high) for data, low, high in sorted(banks))
+
+
+# Keyed by the model object: a Table is built once per model, whatever the number of servos.
+_TABLES: dict[int, Table] = {}
+
+
+def table_for(model: Model) -> Table:
+    """Return the (shared) simulator table of a model."""
+    table = _TABLES.get(id(model))
+    if table is None or table.model is not model:
+        table = Table(model)
+        _TABLES[id(model)] = table
+    return table
 
 
 class Memory:
     """The control table of one servo; EEPROM survives reset_ram(), RAM does not."""
 
-    def __init__(self) -> None:
-        self._data = bytearray(TABLE_SIZE)
+    def __init__(self, model: Model | None = None, firmware_version: int | None = None) -> None:
+        table = table_for(SEED_MODEL if model is None else model)
+        self.table = table
+        self.model = table.model
+        self._firmware = self._check_firmware(table.model, firmware_version)
+        self._getters = table.getters
+        self._setters = table.setters
+        self._data = bytearray(table.size)
         self._read_plans: dict[tuple[int, int], tuple[bytes, list[tuple[int, int]]]] = {}
         # The table's bytes, for fast reads of 1-byte items by address (never replaced).
         self.raw = self._data
         self.factory_reset()
 
+    @staticmethod
+    def _check_firmware(model: Model, firmware_version: int | None) -> int | None:
+        if firmware_version is None:
+            return None
+        if not 0 <= firmware_version <= 255:
+            raise ValueError(f'firmware version {firmware_version} outside 0..255')
+        # The table must be the one this firmware has, or the servo would lie about its layout.
+        try:
+            matching = model_for(model.number, firmware_version)
+        except ModelError:
+            matching = model  # a model outside the catalogue: trust the caller
+        if matching.min_firmware != model.min_firmware:
+            raise ValueError(f'firmware {firmware_version} has the {matching.label} table, '
+                             f'not the {model.label} one')
+        return firmware_version
+
+    @property
+    def table_size(self) -> int:
+        """Return one past the last address of the table."""
+        return self.table.size
+
+    def has(self, name: str) -> bool:
+        """Return whether the model's table has this item."""
+        return name in self._getters
+
+    def item(self, name: str) -> Item:
+        """Return the model's item with this name (KeyError if it has none)."""
+        return self.table.by_name[name]
+
     # ---- raw access (register store protocol) -------------------------------------------------
     def get(self, name: str) -> int:
         """Return the item's value (signed per the item), without checks."""
-        unpack_from, address = _GETTERS[name]
+        unpack_from, address = self._getters[name]
         return unpack_from(self._data, address)[0]
 
     def set(self, name: str, value: int) -> None:  # noqa: A003 (register store protocol)
         """Store value (wrapped to the item's size), without checks."""
-        item = BY_NAME[name]
-        bits = 8 * item.size
-        value = int(value) & ((1 << bits) - 1)
-        if item.signed and value >= 1 << (bits - 1):
-            value -= 1 << bits
-        _STRUCTS[name].pack_into(self._data, item.address, value)
+        pack_into, address, mask, threshold = self._setters[name]
+        value = int(value) & mask
+        if value >= threshold:
+            value -= mask + 1
+        pack_into(self._data, address, value)
 
     def snapshot(self) -> dict[str, int]:
         """Return every item's value by name."""
         data = self._data
-        return {item.name: _STRUCTS[item.name].unpack_from(data, item.address)[0]
-                for item in ITEMS}
+        return {name: unpack_from(data, address)[0]
+                for name, (unpack_from, address) in self._getters.items()}
 
     # ---- resets -------------------------------------------------------------------------------
     def factory_reset(self, keep_id: bool = False, keep_baud: bool = False) -> None:
         """Restore the factory EEPROM (optionally keeping id / baud) and the RAM defaults."""
         saved_id, saved_baud = self._data[7], self._data[8]
-        for item in ITEMS:
-            if item.area == 'eeprom':
-                self.set(item.name, item.initial)
+        for item in self.table.eeprom:
+            self.set(item.name, item.initial)
+        if self._firmware is not None:
+            self.set('firmware_version', self._firmware)
         if keep_id:
             self._data[7] = saved_id
         if keep_baud:
@@ -100,13 +201,13 @@ class Memory:
 
     def reset_ram(self) -> None:
         """Return every RAM item to its power-on value (reboot, power cycle)."""
-        self._data[EEPROM_END:] = bytes(TABLE_SIZE - EEPROM_END)
-        for item in ITEMS:
-            if item.area == 'ram' and item.initial:
-                self.set(item.name, item.initial)
+        table = self.table
+        self._data[EEPROM_END:] = bytes(table.size - EEPROM_END)
+        for name, initial in table.ram_initial:
+            self.set(name, initial)
         # Goal PWM / Goal Current power on at the (EEPROM) limits.
-        self.set('goal_pwm', self.get('pwm_limit'))
-        self.set('goal_current', self.get('current_limit'))
+        for goal, limit in table.goals_from_limits:
+            self.set(goal, self.get(limit))
 
     # ---- bus access ---------------------------------------------------------------------------
     def read(self, address: int, length: int) -> bytes:
@@ -114,16 +215,18 @@ class Memory:
         if length < 1:
             raise TableError(ErrorCode.DATA_LENGTH, 'read length must be at least 1')
         end = address + length
-        if address < 0 or end > TABLE_SIZE:
+        table = self.table
+        if address < 0 or end > table.size:
             raise TableError(ErrorCode.ACCESS, f'read {address}..{end - 1} beyond the table')
         data = self._data
-        if end <= _INDIRECT_DATA_LOW:
+        if end <= table.indirect_low:
             return bytes(data[address:end])
         # A sync read of indirect data runs every cycle: the byte-by-byte resolution is done
         # once per (address, length, mapping) and kept as runs of consecutive source bytes.
-        mapping = bytes(data[_INDIRECT_MAP_LOW:_INDIRECT_MAP_HIGH])
-        if end > _UPPER_BANK_LOW:
-            mapping += bytes(data[_UPPER_MAP_LOW:_UPPER_MAP_HIGH])
+        mapping = b''
+        for data_low, low, high in table.banks:
+            if end > data_low:
+                mapping += data[low:high]
         key = (address, length)
         cached = self._read_plans.get(key)
         if cached is None or cached[0] != mapping:
@@ -133,12 +236,14 @@ class Memory:
 
     def _plan_read(self, address: int, end: int) -> list[tuple[int, int]]:
         data = self._data
+        indirect = self.table.indirect
+        size = self.table.size
         runs: list[tuple[int, int]] = []
         for source in range(address, end):
-            indirect = _INDIRECT_DATA_TO_ADDRESS.get(source)
-            if indirect is not None:
+            entry = indirect.get(source)
+            if entry is not None:
                 # One level of indirection: the target's stored byte.
-                source = _U16.unpack_from(data, indirect)[0] % TABLE_SIZE
+                source = _U16.unpack_from(data, entry)[0] % size
             if runs and runs[-1][1] == source:
                 runs[-1] = (runs[-1][0], source + 1)
             else:
@@ -156,22 +261,26 @@ class Memory:
         if not payload:
             raise TableError(ErrorCode.DATA_LENGTH, 'write without data')
         end = address + len(payload)
-        if address < 0 or end > TABLE_SIZE:
+        table = self.table
+        size = table.size
+        if address < 0 or end > size:
             raise TableError(ErrorCode.ACCESS, f'write {address}..{end - 1} beyond the table')
         data = self._data
-        if end <= _INDIRECT_DATA_LOW:
+        if end <= table.indirect_low:
             physical = dict(zip(range(address, end), payload))
         else:
             physical = {}
+            indirect = table.indirect
             for offset, byte in enumerate(payload):
                 target = address + offset
-                mapping = _INDIRECT_DATA_TO_ADDRESS.get(target)
+                mapping = indirect.get(target)
                 if mapping is not None:
-                    target = _U16.unpack_from(data, mapping)[0] % TABLE_SIZE
+                    target = _U16.unpack_from(data, mapping)[0] % size
                 physical[target] = byte
+        owner = table.owner
         items: dict[str, Item] = {}
         for target in physical:
-            item = _OWNER[target]
+            item = owner[target]
             if item is None:
                 raise TableError(ErrorCode.ACCESS, f'address {target} is not defined')
             items[item.name] = item
@@ -180,7 +289,7 @@ class Memory:
                 if target not in physical:
                     raise TableError(ErrorCode.DATA_LENGTH,
                                      f'{item.name} ({item.size} bytes) written only in part')
-        torque_on = data[64] != 0
+        torque_on = data[table.torque_address] != 0
         for item in items.values():
             if item.access != 'RW':
                 raise TableError(ErrorCode.ACCESS, f'{item.name} is read-only')
@@ -189,21 +298,26 @@ class Memory:
         new = bytearray(data)
         for target, byte in physical.items():
             new[target] = byte
+        structs = table.structs
         for name, item in items.items():
-            value = _STRUCTS[name].unpack_from(new, item.address)[0]
+            value = structs[name].unpack_from(new, item.address)[0]
             if not item.minimum <= value <= item.maximum:
                 raise TableError(ErrorCode.DATA_RANGE,
                                  f'{name}={value} outside {item.minimum}..{item.maximum}')
-            if name == 'operating_mode' and value not in _VALID_MODES:
-                raise TableError(ErrorCode.DATA_RANGE, f'operating mode {value} does not exist')
+            if name == 'operating_mode' and value not in table.valid_modes:
+                raise TableError(ErrorCode.DATA_RANGE,
+                                 f'operating mode {value} does not exist on the '
+                                 f'{self.model.name}')
         for name, item in items.items():
             if item.limit is not None:
-                self._check_limit(new, item, _STRUCTS[name].unpack_from(new, item.address)[0])
-        if 'homing_offset' in items and self._value(new, 'operating_mode') == _POSITION_MODE:
-            offset = self._value(new, 'homing_offset')
+                self._check_limit(new, item, structs[name].unpack_from(new, item.address)[0])
+        homing = table.homing
+        if homing.name in items and self._value(new, 'operating_mode') == table.position_mode:
+            offset = self._value(new, homing.name)
             if abs(offset) > HOMING_OFFSET_POSITION_MODE_LIMIT:
                 # Manual: in position mode an invalid homing offset is ignored (not an error).
-                new[20:24] = data[20:24]
+                stop = homing.address + homing.size
+                new[homing.address:stop] = data[homing.address:stop]
         return new, frozenset(items)
 
     def commit(self, new: bytearray) -> None:
@@ -216,17 +330,18 @@ class Memory:
         self.commit(new)
         return names
 
-    @staticmethod
-    def _value(data: bytearray, name: str) -> int:
-        return _STRUCTS[name].unpack_from(data, BY_NAME[name].address)[0]
+    def _value(self, data: bytearray, name: str) -> int:
+        unpack_from, address = self._getters[name]
+        return unpack_from(data, address)[0]
 
     def _check_limit(self, new: bytearray, item: Item, value: int) -> None:
+        table = self.table
         if item.name == 'goal_position':
             mode = self._value(new, 'operating_mode')
-            if mode == _POSITION_MODE:
+            if mode == table.position_mode:
                 low = self._value(new, 'min_position_limit')
                 high = self._value(new, 'max_position_limit')
-            elif mode in _MULTI_TURN_MODES:
+            elif mode in table.multi_turn_modes:
                 low, high = -EXTENDED_POSITION_LIMIT, EXTENDED_POSITION_LIMIT
             else:
                 return

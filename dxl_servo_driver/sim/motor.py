@@ -1,14 +1,15 @@
 """
-Geared DC motor and thermal model of the XM430-class servo, fitted to the seed's datasheet.
+Geared DC motor and thermal model of one servo, fitted to its model's datasheet.
 
-All mechanical figures are referred to the output horn (after the 353.5:1 gearbox). The motor is
-a coreless DC motor whose inductance is neglected (electrical time constant far below the 1 ms
-control period), so the winding current follows the applied voltage algebraically:
+All mechanical figures are referred to the output horn (after the gearbox). The motor is a DC
+motor whose inductance is neglected (electrical time constant far below the 1 ms control
+period), so the winding current follows the applied voltage algebraically:
 
     i = (duty * V_in - K_e * w) / R
     J * dw/dt = K_t * i - B * w - sign(w) * (T_c + load)
 
-Fit (minimax of the relative errors against the datasheet, see the test file for the check):
+The seed's fit (SEED, XM430-W350 datasheet: 353.5:1, minimax of the relative errors against the
+seed's three voltage points, see test_sim_physics.py for the check):
 
 * R from the stall currents V / I = 5.29, 5.22, 5.48 ohm -> R = 5.35 ohm
   (stall current errors -1.2 %, -2.5 %, +2.5 %).
@@ -21,12 +22,29 @@ Fit (minimax of the relative errors against the datasheet, see the test file for
 * Reflected inertia J = 0.015 kg m^2 (rotor ~1.2e-7 kg m^2 times 353.5^2): mechanical time
   constant J / (K_t K_e / R + B) = 18 ms, so a step reaches speed in tens of ms.
 
-Thermal: one thermal mass to ambient, heated by the winding loss i^2 R plus the 40 mA standby
-current of the electronics: 4 degC/W and a 300 s time constant (stall at 12 V heats by ~100 degC
-towards equilibrium, a few minutes to trip 80 degC). The winding resistance is kept constant.
+Models 1020 and 1030 use SEED unchanged: the seed's manual is their authority, and its figures
+are the XM430-W350 ones for both (models.SEED_DIFFERENCES). Every other model gets the seed's
+motor scaled to its datasheet point at its nominal voltage (fit_motor), fitted exactly there:
+
+* T_c scaled by stall torque (0.02 N m per 4.1 N m), J by the gear ratio squared (same rotor);
+* R = V / I_stall, K_t = (T_stall + T_c) / I_stall;
+* K_e and B from the no-load speed, keeping the seed's no-load current as the same share of the
+  stall current (3.55 %). A fixed gear efficiency would not do: with eta = 0.75 the XH430-V210's
+  back-EMF at its no-load speed would exceed its supply (negative viscous friction).
+
+Only one datasheet point is fitted for those, so at other voltages the torque and speed scale
+linearly with the supply, as in any constant-parameter motor.
+
+Thermal (all models alike: the datasheets give nothing to fit): one thermal mass to ambient,
+heated by the winding loss i^2 R plus the 40 mA standby current of the electronics: 4 degC/W
+and a 300 s time constant (the seed at 12 V stall heats by ~100 degC towards equilibrium, a few
+minutes to trip 80 degC). The winding resistance is kept constant.
 """
 
+from dataclasses import dataclass
 import math
+
+from dxl_servo_driver.models import Model, VoltagePoint
 
 GEAR_RATIO = 353.5
 PULSES_PER_REV = 4096
@@ -48,22 +66,58 @@ STANDBY_CURRENT_A = 0.040
 THERMAL_RESISTANCE_C_W = 4.0
 THERMAL_TIME_CONSTANT_S = 300.0
 
-
-def stall_current_a(volts: float) -> float:
-    """Steady current with the horn held still at full duty."""
-    return volts / RESISTANCE_OHM
-
-
-def stall_torque_nm(volts: float) -> float:
-    """Torque delivered to a load holding the horn still at full duty."""
-    return TORQUE_CONSTANT_NM_A * stall_current_a(volts) - COULOMB_FRICTION_NM
+# The seed's datasheet point at 12 V (stall torque N m, stall current A): the scale of the fit.
+SEED_STALL_TORQUE_NM = 4.1
+SEED_STALL_CURRENT_A = 2.3
+# Model numbers whose physics is the seed's fit itself.
+SEED_MODEL_NUMBERS = frozenset((1020, 1030))
 
 
-def no_load_speed_rad_s(volts: float) -> float:
-    """Steady free-running speed at full duty (analytic steady state of the model)."""
-    drive = volts - RESISTANCE_OHM * COULOMB_FRICTION_NM / TORQUE_CONSTANT_NM_A
-    damping = BACK_EMF_V_S_RAD + RESISTANCE_OHM * VISCOUS_FRICTION_NM_S_RAD / TORQUE_CONSTANT_NM_A
-    return max(0.0, drive / damping)
+@dataclass(frozen=True)
+class Motor:
+    """One model's motor, gearbox and thermal constants, referred to the horn."""
+
+    gear_ratio: float
+    resistance_ohm: float
+    torque_constant_nm_a: float
+    back_emf_v_s_rad: float
+    coulomb_friction_nm: float
+    viscous_friction_nm_s_rad: float
+    inertia_kg_m2: float
+    standby_current_a: float = STANDBY_CURRENT_A
+    thermal_resistance_c_w: float = THERMAL_RESISTANCE_C_W
+    thermal_time_constant_s: float = THERMAL_TIME_CONSTANT_S
+
+    def stall_current_a(self, volts: float) -> float:
+        """Steady current with the horn held still at full duty."""
+        return volts / self.resistance_ohm
+
+    def stall_torque_nm(self, volts: float) -> float:
+        """Torque delivered to a load holding the horn still at full duty."""
+        return self.torque_constant_nm_a * self.stall_current_a(volts) - self.coulomb_friction_nm
+
+    def no_load_speed_rad_s(self, volts: float) -> float:
+        """Steady free-running speed at full duty (analytic steady state of the model)."""
+        kt = self.torque_constant_nm_a
+        r_ohm = self.resistance_ohm
+        drive = volts - r_ohm * self.coulomb_friction_nm / kt
+        damping = self.back_emf_v_s_rad + r_ohm * self.viscous_friction_nm_s_rad / kt
+        return max(0.0, drive / damping)
+
+    def heat_power_w(self, current_sq_a2: float, volts: float) -> float:
+        """Heat dissipated for a mean squared winding current: i^2 R plus the electronics."""
+        return current_sq_a2 * self.resistance_ohm + self.standby_current_a * volts
+
+    def thermal_step(self, temperature_c: float, ambient_c: float, power_w: float,
+                     dt_s: float) -> float:
+        """Exact first-order response over dt_s at constant power (any dt_s, no sub-steps)."""
+        equilibrium_c = ambient_c + self.thermal_resistance_c_w * power_w
+        decay = math.exp(-dt_s / self.thermal_time_constant_s)
+        return equilibrium_c + (temperature_c - equilibrium_c) * decay
+
+
+SEED = Motor(GEAR_RATIO, RESISTANCE_OHM, TORQUE_CONSTANT_NM_A, BACK_EMF_V_S_RAD,
+             COULOMB_FRICTION_NM, VISCOUS_FRICTION_NM_S_RAD, INERTIA_KG_M2)
 
 
 def rad_s_to_rpm(rad_s: float) -> float:
@@ -71,13 +125,73 @@ def rad_s_to_rpm(rad_s: float) -> float:
     return rad_s * 60.0 / (2.0 * math.pi)
 
 
+def rpm_to_rad_s(rpm: float) -> float:
+    """Convert rpm to rad/s."""
+    return rpm * 2.0 * math.pi / 60.0
+
+
+def _seed_no_load_share() -> float:
+    """Return the seed's no-load current at 12 V over its datasheet stall current."""
+    volts = 12.0
+    current_a = (volts - BACK_EMF_V_S_RAD * SEED.no_load_speed_rad_s(volts)) / RESISTANCE_OHM
+    return current_a / SEED_STALL_CURRENT_A
+
+
+NO_LOAD_CURRENT_SHARE = _seed_no_load_share()
+
+
+def fit_motor(gear_ratio: float, point: VoltagePoint) -> Motor:
+    """Return the seed's motor scaled to match one datasheet point exactly (see above)."""
+    volts = point.voltage_v
+    stall_a = point.stall_current_a
+    speed_rad_s = rpm_to_rad_s(point.no_load_speed_rpm)
+    friction_nm = COULOMB_FRICTION_NM * point.stall_torque_nm / SEED_STALL_TORQUE_NM
+    r_ohm = volts / stall_a
+    kt = (point.stall_torque_nm + friction_nm) / stall_a
+    no_load_a = NO_LOAD_CURRENT_SHARE * stall_a
+    ke = (volts - r_ohm * no_load_a) / speed_rad_s
+    viscous = (kt * no_load_a - friction_nm) / speed_rad_s
+    inertia = INERTIA_KG_M2 * (gear_ratio / GEAR_RATIO) ** 2
+    return Motor(gear_ratio, r_ohm, kt, ke, friction_nm, viscous, inertia)
+
+
+# Built once per model object: a bus of 50 servos of one model shares one Motor.
+_MOTORS: dict[int, tuple[Model, Motor]] = {}
+
+
+def motor_for(model: Model) -> Motor:
+    """Return the motor of a model: SEED for 1020/1030, else fit_motor at its nominal point."""
+    cached = _MOTORS.get(id(model))
+    if cached is not None and cached[0] is model:
+        return cached[1]
+    if model.number in SEED_MODEL_NUMBERS:
+        fitted = SEED
+    else:
+        fitted = fit_motor(model.physics.gear_ratio, model.physics.nominal)
+    _MOTORS[id(model)] = (model, fitted)
+    return fitted
+
+
+def stall_current_a(volts: float) -> float:
+    """Steady current of the seed's motor with the horn held still at full duty."""
+    return SEED.stall_current_a(volts)
+
+
+def stall_torque_nm(volts: float) -> float:
+    """Torque the seed's motor delivers to a load holding the horn still at full duty."""
+    return SEED.stall_torque_nm(volts)
+
+
+def no_load_speed_rad_s(volts: float) -> float:
+    """Steady free-running speed of the seed's motor at full duty."""
+    return SEED.no_load_speed_rad_s(volts)
+
+
 def heat_power_w(current_sq_a2: float, volts: float) -> float:
-    """Heat dissipated for a mean squared winding current: i^2 R plus the standby electronics."""
-    return current_sq_a2 * RESISTANCE_OHM + STANDBY_CURRENT_A * volts
+    """Heat dissipated by the seed's motor: i^2 R plus the standby electronics."""
+    return SEED.heat_power_w(current_sq_a2, volts)
 
 
 def thermal_step(temperature_c: float, ambient_c: float, power_w: float, dt_s: float) -> float:
-    """Exact first-order response over dt_s at constant power (any dt_s, no sub-steps needed)."""
-    equilibrium_c = ambient_c + THERMAL_RESISTANCE_C_W * power_w
-    decay = math.exp(-dt_s / THERMAL_TIME_CONSTANT_S)
-    return equilibrium_c + (temperature_c - equilibrium_c) * decay
+    """Exact first-order response of the seed's thermal mass over dt_s at constant power."""
+    return SEED.thermal_step(temperature_c, ambient_c, power_w, dt_s)

@@ -1,8 +1,9 @@
 """
 One simulated servo: Protocol 2.0 instruction handling and the register side effects.
 
-The physics lives in dynamics.ServoDynamics; this class owns the control table, time, power and
-the latched hardware errors.  Choices where the manual is silent (all documented here):
+The physics lives in dynamics.ServoDynamics; this class owns the control table (its model's:
+items, modes, bauds, and the Firmware Version it reports), time, power and the latched hardware
+errors.  Choices where the manual is silent (all documented here):
 - A status packet answers with the id the servo had when the packet arrived (ID change: old id,
   then the new one); Status Return Level and Return Delay Time written by a packet already apply
   to that packet's own status.
@@ -34,7 +35,7 @@ the latched hardware errors.  Choices where the manual is silent (all documented
 import struct
 from typing import Callable, Protocol
 
-from dxl_servo_driver.control_table import BAUD_RATES, BY_NAME
+from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, Instruction, ParseEvent)
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
@@ -85,10 +86,18 @@ class SimServo:
     """One servo on the simulated bus."""
 
     def __init__(self, servo_id: int, dynamics: Dynamics, now_s: float,
-                 boot_time_s: float = 0.1) -> None:
+                 boot_time_s: float = 0.1, model: Model | None = None,
+                 firmware_version: int | None = None) -> None:
         if not 0 <= servo_id <= 252:
             raise ValueError(f'servo id {servo_id} outside 0..252')
-        self.memory = Memory()
+        self.memory = Memory(model, firmware_version)
+        self.model = self.memory.model
+        # Registers of one model moved by another's physics would be a servo that lies.
+        dynamics_model = getattr(dynamics, 'model', self.model)
+        if dynamics_model is not self.model:
+            raise ValueError(f'the dynamics are of the {dynamics_model.label}, the table of the '
+                             f'{self.model.label}')
+        self._bauds = self.model.bauds
         self.memory.set('id', servo_id)
         self.dynamics = dynamics
         self.boot_time_s = boot_time_s
@@ -108,7 +117,7 @@ class SimServo:
     @property
     def baud_bps(self) -> int:
         """Return the baud rate the servo listens at."""
-        return BAUD_RATES.get(self.memory.raw[8], 57600)  # baud_rate (8)
+        return self._bauds.get(self.memory.raw[8], 57600)  # baud_rate (8)
 
     @property
     def return_delay_s(self) -> float:
@@ -246,7 +255,7 @@ class SimServo:
             return error.code
         old_torque = memory.get('torque_enable')
         old_mode = memory.get('operating_mode')
-        if 'torque_enable' in names and new[BY_NAME['torque_enable'].address]:
+        if 'torque_enable' in names and new[memory.table.torque_address]:
             if memory.get('hardware_error_status') & memory.get('shutdown'):
                 return ErrorCode.RESULT_FAIL
         memory.commit(new)
@@ -259,10 +268,10 @@ class SimServo:
         if 'operating_mode' in names and memory.get('operating_mode') != old_mode:
             memory.set('profile_velocity', 0)
             memory.set('profile_acceleration', 0)
-            memory.set('goal_pwm', memory.get('pwm_limit'))
-            memory.set('goal_current', memory.get('current_limit'))
+            for goal, limit in memory.table.goals_from_limits:
+                memory.set(goal, memory.get(limit))
             for name in _MODE_RESET_GAINS:
-                memory.set(name, BY_NAME[name].initial)
+                memory.set(name, memory.item(name).initial)
             dynamics.reinit_present_position(memory)
         if 'torque_enable' in names:
             torque = memory.get('torque_enable')

@@ -3,11 +3,20 @@
 
   virtual_bus --ids 1 2 3 --baud 1000000 --link /tmp/ttyDXL [--timing instant|wire]
               [--latency-ms F] [--return-delay-time RAW] [--seed N]
+              [--models M [M ...]] [--firmware N]
               [--trace-goals FILE] [--trace-state FILE]
 
 Prints the pty's device path as its first stdout line, then answers control lines read on
-standard input (sim/control.py) with one line each. SIGINT/SIGTERM end it cleanly (exit 0) and
-remove the --link symlink. Standard input reaching EOF does not stop it.
+standard input (sim/control.py) with one line each. Clients read the device from that line, so
+the servos' models go to a start line on stderr instead:
+`virtual_bus: /dev/pts/N: id 1 XM430-W210 (model 1030, firmware 45), id 2 ...`.
+SIGINT/SIGTERM end it cleanly (exit 0) and remove the --link symlink. Standard input reaching
+EOF does not stop it.
+
+--models gives each servo's model, by number or name (XL430-W250, any case): one for every id,
+or one per id in --ids order; the default is the seed's model 1030. --firmware sets the
+Firmware Version every servo reports, which also picks the table of models whose table changed
+with the firmware (the X330's indirect block, from version 53 on).
 
 The baud rate the client sets on the terminal (including custom rates set through termios2 /
 BOTHER, as pyserial does for 4.5 Mbps) is read from the slave side whenever bytes arrive; servos
@@ -35,6 +44,7 @@ import tty
 from typing import Callable, NoReturn, Sequence, TextIO
 
 from dxl_servo_driver import control_table, protocol
+from dxl_servo_driver.models import Model, model_for, model_named, ModelError
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
@@ -108,19 +118,23 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -
     current baud, as a user would with a real servo. Servos still booting ignore packets, so it
     retries until the registers read back right.
     """
-    baud_raw = {bps: raw for raw, bps in control_table.BAUD_RATES.items()}[baud_bps]
-    wanted: list[tuple[str, int]] = []
-    if return_delay_raw is not None:
-        wanted.append(('return_delay_time', return_delay_raw))
-    wanted.append(('baud_rate', baud_raw))  # last: it changes the baud the servo listens at
     deadline_s = time.monotonic() + SETUP_TIMEOUT_S
     for servo_id in bus.servo_ids():
+        model = bus.model(servo_id)
+        baud_raw = {bps: raw for raw, bps in model.bauds.items()}.get(baud_bps)
+        if baud_raw is None:
+            raise StartupError(f'servo {servo_id} ({model.label}) cannot run at {baud_bps} bps; '
+                               f'it supports {sorted(model.bauds.values())}')
+        wanted: list[tuple[str, int]] = []
+        if return_delay_raw is not None:
+            wanted.append(('return_delay_time', return_delay_raw))
+        wanted.append(('baud_rate', baud_raw))  # last: it changes the baud the servo listens at
         for name, value in wanted:
-            item = control_table.lookup(name)
+            item = model.item(name)
             while bus.read_register(servo_id, name) != value:
                 if time.monotonic() > deadline_s:
                     raise StartupError(f'servo {servo_id} did not accept {name}={value}')
-                current_bps = control_table.BAUD_RATES[bus.read_register(servo_id, 'baud_rate')]
+                current_bps = model.bauds[bus.read_register(servo_id, 'baud_rate')]
                 params = (item.address.to_bytes(2, 'little')
                           + value.to_bytes(item.size, 'little'))
                 packet = protocol.encode_instruction(servo_id, protocol.Instruction.WRITE, params)
@@ -374,6 +388,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--return-delay-time', type=int, default=None, metavar='RAW',
                         help='Return Delay Time register (2 us units, 0..254)')
     parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
+    parser.add_argument('--models', nargs='+', default=None, metavar='M',
+                        help='model number or name of the servos (XL430-W250, any case): one '
+                             'for all ids or one per id (default 1030)')
+    parser.add_argument('--firmware', type=int, default=None, metavar='N',
+                        help="Firmware Version the servos report (0..255); picks the model's "
+                             'table for that firmware (default: the newest)')
     parser.add_argument('--trace-goals', default=None, metavar='FILE',
                         help='append "<monotonic time> <id> <goal_position>" per goal written')
     parser.add_argument('--trace-state', default=None, metavar='FILE',
@@ -393,7 +413,50 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error('--latency-ms needs --timing wire')
     if args.return_delay_time is not None and not 0 <= args.return_delay_time <= 254:
         parser.error('--return-delay-time must be 0..254')
+    if args.firmware is not None and not 0 <= args.firmware <= 255:
+        parser.error(f'--firmware {args.firmware}: expected 0..255')
+    try:
+        args.models = _servo_models(args.ids, args.models, args.firmware)
+    except ValueError as exc:
+        parser.error(str(exc))
+    for servo_id, model in args.models.items():
+        if args.baud not in model.bauds.values():
+            parser.error(f'--baud {args.baud}: servo {servo_id} ({model.name}) supports '
+                         f'{sorted(model.bauds.values())}')
     return args
+
+
+def _model_of(token: str, firmware: int | None) -> Model:
+    """Return the model a --models value names (a number or a name), for this firmware."""
+    try:
+        number = int(token, 10) if token.isdigit() else model_named(token).number
+        return model_for(number, firmware)
+    except ModelError as exc:
+        raise ValueError(f'--models {token}: {exc}') from None
+
+
+def _servo_models(ids: Sequence[int], tokens: Sequence[str] | None,
+                  firmware: int | None) -> dict[int, Model]:
+    """Return id -> model from --models (one for all ids, or one per id); ValueError if bad."""
+    if tokens is None:
+        tokens = [str(control_table.MODEL_NUMBER)]
+    if len(tokens) not in (1, len(ids)):
+        raise ValueError(f'--models: give one model for every id or one per id '
+                         f'({len(ids)} ids, {len(tokens)} models)')
+    chosen = [_model_of(token, firmware) for token in tokens]
+    if len(chosen) == 1:
+        chosen *= len(ids)
+    return dict(zip(ids, chosen))
+
+
+def describe_servos(bus: SimBus) -> str:
+    """Return 'id 1 XM430-W210 (model 1030, firmware 45), id 2 ...' for the start line."""
+    parts = []
+    for servo_id in bus.servo_ids():
+        model = bus.model(servo_id)
+        firmware = bus.read_register(servo_id, 'firmware_version')
+        parts.append(f'id {servo_id} {model.name} (model {model.number}, firmware {firmware})')
+    return ', '.join(parts)
 
 
 def _make_link(link: str, device: str) -> None:
@@ -451,7 +514,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the virtual bus; return the exit status."""
     args = _parse_args(argv)
     try:
-        bus = SimBus(args.ids, seed=args.seed)
+        firmware = None if args.firmware is None else dict.fromkeys(args.ids, args.firmware)
+        bus = SimBus(args.ids, seed=args.seed, models=args.models, firmware=firmware)
         configure_servos(bus, args.baud, args.return_delay_time)
     except (StartupError, ValueError) as exc:  # ValueError: SimBus refused the ids
         print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
@@ -493,6 +557,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 1
         console = _Console(server, sys.stdout)
         console.say(device)
+        print(f'virtual_bus: {device}: {describe_servos(bus)}', file=sys.stderr, flush=True)
         if sys.stdin is not None:
             if isinstance(sys.stdin, io.TextIOWrapper):
                 sys.stdin.reconfigure(errors='replace')  # a stray binary byte is a bad line
