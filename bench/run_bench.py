@@ -18,6 +18,7 @@ import json
 import os
 import pathlib
 import platform
+import random
 import signal
 import statistics
 import subprocess
@@ -28,6 +29,12 @@ import time
 from typing import Any, Dict, List, Optional, Tuple
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+# DDS of its own, before anything loads rclpy: another ROS process on the machine (a test run,
+# a robot) must neither see the benchmark's traffic nor add to it. BENCH_DOMAIN_ID keeps one.
+os.environ['ROS_DOMAIN_ID'] = os.environ.get(
+    'BENCH_DOMAIN_ID', str(random.SystemRandom().randint(102, 232)))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('ROS_LOCALHOST_ONLY', None)
 sys.path.insert(0, str(ROOT))
 
 from dxl_servo_driver import model  # noqa: E402 - after the path set-up above
@@ -271,6 +278,19 @@ def command_latencies(published: List[Tuple[float, int]],
     return latencies
 
 
+def run_case_retried(n: int, baud: int, workdir: pathlib.Path,
+                     failures: List[str]) -> List[Dict[str, Any]]:
+    """Run a case; once more if it fails (and say so); never abort the run for one case."""
+    for attempt in (1, 2):
+        try:
+            return run_case(n, baud, workdir)
+        except Exception as exc:  # noqa: B902 - one case must not end the whole benchmark
+            line = f'bench: N={n} at {baud} bps failed (attempt {attempt} of 2): {exc}'
+            print(line, file=sys.stderr, flush=True)
+            failures.append(line)
+    return []
+
+
 def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
     """Measure the three variants on one simulated bus."""
     bus = VirtualBus(n, baud, workdir)
@@ -433,18 +453,23 @@ def main() -> int:
     counts = [int(c) for c in os.environ.get('BENCH_COUNTS', ' '.join(map(str, COUNTS))).split()]
     bauds = [int(b) for b in os.environ.get('BENCH_BAUDS', ' '.join(map(str, BAUDS))).split()]
     rows: List[Dict[str, Any]] = []
+    failures: List[str] = []
+    print(f'bench: ROS_DOMAIN_ID {os.environ["ROS_DOMAIN_ID"]}, localhost discovery',
+          file=sys.stderr)
     with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
         workdir = pathlib.Path(tmp)
         for baud in bauds:
             for n in counts:
                 print(f'bench: N={n} at {baud} bps ...', file=sys.stderr, flush=True)
-                rows.extend(run_case(n, baud, workdir))
+                rows.extend(run_case_retried(n, baud, workdir, failures))
     result = {'machine': machine(), 'cases': rows}
     (out_dir / 'bench.json').write_text(json.dumps(result, indent=1) + '\n')
     plot(rows, out_dir / 'bench.png')
     print(table(rows))
     print()
     for line in targets(rows):
+        print(line)
+    for line in failures:
         print(line)
     print(f'\nwritten: {out_dir / "bench.json"}, {out_dir / "bench.png"}')
     return 0

@@ -1,6 +1,7 @@
 """
-A mixed bus of X-series models: XM430-W350 (1020), XM430-W210 (1030), XL430-W250 (1060),
-XM540-W270 (1120) and XL330-M288 (1200), each driven with its own table and units.
+A mixed bus of X-series models, each driven with its own table and units.
+
+XM430-W350 (1020), XM430-W210 (1030), XL430-W250 (1060), XM540-W270 (1120), XL330-M288 (1200).
 
 In process (`port: sim`, `<joint>.model`): every joint goes through every mode its model has,
 with a goal in SI units checked against the register in the model's unit. As a user would:
