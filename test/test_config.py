@@ -156,6 +156,6 @@ def test_shipped_parameter_files_are_valid(name: str) -> None:
     path = pathlib.Path(__file__).resolve().parent.parent / 'config' / name
     tree = yaml.safe_load(path.read_text())
     config = validate(flatten(tree['/**']['ros__parameters']))
-    assert len(config.joints) == 3
+    assert len(config.joints) >= 3
     modes = {joint.operating_mode for joint in config.joints}
-    assert len(modes) == 3, 'the shipped files show three different modes'
+    assert len(modes) == len(config.joints), 'the shipped files show one mode per joint'

@@ -5,8 +5,9 @@ import pathlib
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-CHECKED = ['model.py', 'config.py', 'control_table.py', 'protocol.py', 'manager.py', 'bus.py',
-           'scan.py', 'sim', 'tasks.py', 'models', 'transports.py']
+CHECKED = ['model.py', 'config.py', 'control_table.py', 'protocol.py', 'manager.py', 'driver',
+           'bus.py', 'scan.py', 'sim', 'tasks.py', 'models', 'transports.py', 'trajectory.py',
+           'commands.py', 'gripper.py']
 
 
 def test_the_layers_below_the_node_type_check() -> None:

@@ -1,0 +1,320 @@
+"""
+The cycle on the bus: one packed state read of every servo, one sync write per goal register.
+
+The read is dated so a late reply is never published as current, retried per servo within
+the cycle's budget, and watched for servos that restarted on their own (their indirect map is
+gone: the block reads zeros and the canary is 0), which are handed to recovery. A servo that
+does not answer well keeps fresh False: left out of what is published, never given a stale
+or invented value.
+"""
+
+from dataclasses import dataclass
+import struct
+import threading
+import time
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+from dxl_servo_driver import model
+from dxl_servo_driver.bus import SyncRead, SyncResult
+from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver.goals import Goals
+from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.servo import (
+    BLOCK, IDX_CANARY, IDX_HW_ERROR, IDX_TICK, Log, Roster, Servo, StaleGuard, Throttle)
+from dxl_servo_driver.errors import CommError, StatusError
+from dxl_servo_driver.tasks import TaskRunner
+
+STATUS_BYTES = 11   # status packet overhead
+READ_BYTES = 14     # a READ instruction packet
+_NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
+# A servo that missed this many sync reads in a row is not retried on its own in a cycle.
+SILENT_AFTER_FAILURES = 3
+_PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
+
+
+@dataclass
+class _Reading:
+    """The cycle's sync read in flight."""
+
+    stamp: float
+    full: bool
+    length: int
+    pending: SyncRead
+
+
+class Cycle:
+    """The state read and the goal write of every cycle, and their counters."""
+
+    def __init__(self, config: DriverConfig, lock: threading.RLock, roster: Roster,
+                 link: Link, tasks: TaskRunner, goals: Goals, stale: StaleGuard,
+                 restarted: Callable[[Servo], None], clock: Callable[[], float],
+                 warn: Log) -> None:
+        self.config = config
+        self._lock = lock
+        self._roster = roster
+        self._link = link
+        self._tasks = tasks   # joints with a task in progress are left out of the read
+        self._goals = goals
+        self._stale = stale
+        self._restarted = restarted
+        self._clock = clock
+        self._warn_throttled = Throttle(warn, clock=clock)
+        self.cycles = 0
+        self.read_failures = 0
+        self.retries = 0
+        self.retry_successes = 0
+        self.last_read_time = 0.0
+        # How often the whole state block (health part too) is read; the node sets it from
+        # state_rate and the 1 Hz diagnostics.
+        self.health_period_s = 0.1
+        self._last_full_s = -1e9
+        self._need_full = True
+        self._ids: List[Tuple[Servo, int]] = []
+        self._reading: Optional[_Reading] = None
+        # The sync reads: (block, ids) per state-block layout; one on most buses.
+        self._groups: List[Tuple[model.StateBlock, List[int]]] = []
+
+    def want_full(self) -> None:
+        """Read the whole block (health too) next cycle."""
+        self._need_full = True
+
+    def refresh(self) -> None:
+        """Take who is read again (after configure, or a task began or ended)."""
+        # The hot path reads these instead of rebuilding lists every cycle. A servo with a task
+        # in progress (being restored, rebooted, probed) is left out of the cycle's read.
+        self._ids = [(servo, servo.servo_id) for servo in self._roster.active()
+                     if servo.name not in self._tasks]
+        groups: Dict[Tuple[int, int], Tuple[model.StateBlock, List[int]]] = {}
+        for servo, servo_id in self._ids:
+            block = servo.block
+            groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
+        self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
+
+    # the read -----------------------------------------------------------------------------
+    def read_states(self, full: Optional[bool] = None,
+                    retry_until: Optional[float] = None) -> float:
+        """
+        Read every servo's state with one sync read; return the read's monotonic time.
+
+        The motion part of the block is read every cycle (with the Realtime Tick while the bus
+        is suspicious); the whole block (health too) when `full`, or by default every
+        health_period_s, when a servo raised its alert bit, or when a servo has no health values
+        yet. A servo whose reply was lost or corrupted is read again on its own (read_retries
+        times) while the clock is before retry_until (the cycle's budget). A servo that still
+        does not answer well, or whose sample is older than its request, keeps fresh False: it
+        is left out of what is published, never given a stale or invented value.
+        """
+        if self.begin_read(full):
+            self.end_read(retry_until)
+        return self.last_read_time
+
+    def begin_read(self, full: Optional[bool] = None) -> bool:
+        """
+        Put the cycle's sync read on the wire and return; end_read() collects it.
+
+        The manager's lock (and the bus's) stay held until end_read() or abort_read(), in the
+        same thread: in between, the caller may only do work that needs neither (publishing the
+        last cycle). False (nothing in flight, no lock held) when no servo is to be read.
+        """
+        self._lock.acquire()
+        try:
+            bus = self._link.io()
+            if not self._groups:
+                self._lock.release()
+                return False
+            stamp = self._clock()
+            if full is None:
+                full = (stamp - self._last_full_s >= self.health_period_s
+                        or self._need_full)
+            if full:
+                length = BLOCK.size   # each group's own block size (_group_length)
+            elif bus.dirty:
+                length = BLOCK.tagged_size
+            else:
+                length = BLOCK.motion_size
+            block, ids = self._groups[0]
+            pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids)
+        except BaseException:
+            self._lock.release()
+            raise
+        self._reading = _Reading(stamp, full, length, pending)
+        return True
+
+    def abort_read(self) -> None:
+        """Give up the sync read in flight, if any, and release the locks (idempotent)."""
+        reading = self._reading
+        if reading is None:
+            return
+        self._reading = None
+        try:
+            if self._link.bus is not None:
+                self._link.bus.abort(reading.pending)
+        finally:
+            self._lock.release()
+
+    def drop_read(self) -> None:
+        """Give up the sync read in flight at close (the lock is left as it is)."""
+        if self._reading is not None and self._link.bus is not None:
+            self._link.bus.abort(self._reading.pending)
+            self._reading = None
+
+    def end_read(self, retry_until: Optional[float] = None) -> float:
+        """Collect the sync read begun by begin_read(); return its monotonic time."""
+        reading = self._reading
+        if reading is None:
+            raise RuntimeError('end_read() without a read in flight')
+        self._reading = None
+        try:
+            bus = self._link.io()
+            result = bus.end_sync_read(reading.pending)
+            received = time.monotonic()   # the bus dates requests on this clock
+            for block, ids in self._groups[1:]:
+                # Models whose state block lives elsewhere (an X330 before firmware 53): one
+                # more sync read each layout, dated on their own.
+                more = bus.sync_read(block.read_address, _group_length(block, reading.length),
+                                     ids)
+                got = time.monotonic()
+                result.data.update(more.data)
+                result.alerts.update(more.alerts)
+                result.dated.update({sid: (more.sent_s, got) for sid in ids})
+                result.dated.update(more.dated)
+                result.clean = result.clean and more.clean
+            if (retry_until is not None and self.config.read_retries
+                    and not result.clean):
+                self._retry_failed(result, reading.length, retry_until)
+            self._need_full = False
+            if reading.full:
+                self._last_full_s = reading.stamp
+            self._take_results(result, reading.stamp, received)
+            self.cycles += 1
+            self.last_read_time = reading.stamp
+            return reading.stamp
+        finally:
+            self._lock.release()
+
+    def _take_results(self, result: SyncResult, stamp: float, received: float) -> None:
+        for servo, servo_id in self._ids:
+            data = result.data.get(servo_id)
+            if not isinstance(data, bytes):
+                self._read_failed(servo, data)
+                continue
+            size = len(data)   # a retry may have read more than the sync read
+            block = servo.block
+            values = block.decoder(size)(data)
+            full = size == block.size
+            if not values[0] and not values[1] and not values[2] and not full:
+                # What a restarted servo returns (its indirect map is gone) - or a horn at
+                # exactly -pi, at rest: ask for the whole block, canary included, to know.
+                checked = self._check_restart(servo)
+                if checked is None:
+                    continue
+                values = checked
+                full = True
+            elif full and values[IDX_CANARY] == 0:
+                servo.fresh = False
+                self._restarted(servo)
+                continue
+            elif size != BLOCK.motion_size:
+                sent_s, received_s = result.dated.get(servo_id, (result.sent_s, received))
+                if not self._stale.check(servo, values[IDX_TICK], sent_s, received_s):
+                    continue
+            if full:
+                servo.state = values
+                servo.health_time = stamp
+            elif servo.state is not None:
+                servo.state = values[:BLOCK.MOTION_FIELDS] + servo.state[BLOCK.MOTION_FIELDS:]
+            else:
+                # Motion is good; the health part is not known yet (health_time 0).
+                servo.state = values[:BLOCK.MOTION_FIELDS] + (0,) + _NO_HEALTH
+                self._need_full = True
+            if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:  # type: ignore
+                self._need_full = True   # a new hardware error: decode it next cycle
+            servo.fresh = True
+            servo.consecutive_failures = 0
+
+    def _read_failed(self, servo: Servo, error: Any) -> None:
+        servo.fresh = False
+        servo.comm_errors += 1
+        servo.consecutive_failures += 1
+        self.read_failures += 1
+        self._warn_throttled(f'read:{servo.name}', f'joint {servo.name!r}: state read failed: '
+                             f'{error}')
+
+    def _check_restart(self, servo: Servo) -> Optional[Tuple[int, ...]]:
+        """
+        Read the whole block of a servo whose motion read was all zeros.
+
+        Returns the block when the servo did not restart; None when it did (its restore is
+        then started) or when it did not answer.
+        """
+        bus = self._link.io()
+        try:
+            data, sent_s = bus.read_dated(servo.servo_id, servo.block.read_address,
+                                          servo.block.size)
+        except CommError as exc:
+            self._read_failed(servo, exc)
+            return None
+        values = servo.block.decode(data)
+        if values[IDX_CANARY] == 0:
+            servo.fresh = False
+            self._restarted(servo)
+            return None
+        if not self._stale.check(servo, values[IDX_TICK], sent_s, time.monotonic()):
+            return None
+        return values
+
+    def _retry_failed(self, result: SyncResult, length: int, until: float) -> None:
+        bus = self._link.io()
+        # A retry always reads the tick: the bus is suspicious after a failure.
+        length = max(length, BLOCK.tagged_size)
+        one_read_s = bus.reply_timeout_s(STATUS_BYTES + length, 1, READ_BYTES)
+        silent = {servo.servo_id for servo, _ in self._ids
+                  if servo.consecutive_failures >= SILENT_AFTER_FAILURES}
+        for servo_id, data in list(result.data.items()):
+            if isinstance(data, (bytes, StatusError)):
+                continue   # a status error is the servo's answer: asking again changes nothing
+            if servo_id in silent:
+                continue   # gone for now: the sync read keeps asking; retries serve the others
+            for _ in range(self.config.read_retries):
+                if self._clock() + one_read_s > until:
+                    break
+                self.retries += 1
+                try:
+                    block = self._roster.by_id[servo_id].block
+                    answer, sent_s = bus.read_dated(servo_id, block.read_address,
+                                                    _group_length(block, length))
+                except CommError as exc:
+                    result.data[servo_id] = exc
+                    continue
+                self.retry_successes += 1
+                result.data[servo_id] = answer
+                result.dated[servo_id] = (sent_s, time.monotonic())
+                break
+
+    # the write ----------------------------------------------------------------------------
+    def write_pending(self) -> int:
+        """Write the goals queued since the last cycle: one sync write per register."""
+        with self._lock:
+            bus = self._link.bus
+            if not self._goals.waiting() or bus is None:
+                return 0
+            pending = self._goals.take()
+            written = 0
+            for register, goals in pending.items():
+                # One sync write per register: its address and size are every model's alike
+                # on the X series, grouped anyway so that a table that differs is honoured.
+                groups: Dict[Tuple[int, int, bool], List[Tuple[int, bytes]]] = {}
+                for sid, value in goals.items():
+                    item = self._roster.by_id[sid].model.item(register)
+                    fmt = _PACKERS[item.size]
+                    groups.setdefault((item.address, item.size, item.signed), []).append(
+                        (sid, fmt.pack(value)))
+                for (address, size, _), data in groups.items():
+                    bus.sync_write(address, size, data)
+                written += len(goals)
+            return written
+
+
+def _group_length(block: model.StateBlock, length: int) -> int:
+    """Return the read length of a block: a whole-block read is as long as that model's."""
+    return block.size if length >= BLOCK.size else length

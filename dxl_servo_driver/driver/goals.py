@@ -1,0 +1,165 @@
+"""
+The goal queue: commands checked, converted, clamped and queued, never written here.
+
+A command is refused whole (nothing queued) when any of its goals is wrong, converted with the
+servo's units into the joint's frame (turns kept), clamped to the servo's limits with a
+warning, and queued per register; the latest goal per joint wins. Whoever writes the goals
+takes them all at once (take). Streamed velocity, current and PWM goals fall back to zero when
+no command came for command_timeout (the deadman).
+
+Commands take only the queue's own small lock, never the manager's, so a command arriving
+during the cycle's read is queued at once and goes out in that cycle's write. Order when both
+are needed: the manager's lock, then this one.
+"""
+
+import math
+import threading
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+from dxl_servo_driver import model
+from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver.servo import (
+    clamp_position, Log, MODE_KIND, PortState, Result, Roster, Servo, Throttle)
+from dxl_servo_driver.tasks import TaskRunner
+
+Goal = Tuple[Servo, str, int]   # the servo, its goal register, the raw value
+Pending = Dict[str, Dict[int, int]]   # register -> {servo id: raw goal}
+
+
+class Goals:
+    """The goals queued since the last write."""
+
+    def __init__(self, config: DriverConfig, roster: Roster, tasks: TaskRunner,
+                 port: PortState, clock: Callable[[], float], warn: Log) -> None:
+        self.config = config
+        self.lock = threading.Lock()
+        self._pending: Pending = {}
+        self._roster = roster
+        self._tasks = tasks   # joints with a task in progress take no goals
+        self._port = port
+        self._clock = clock
+        self._warn = warn
+        self._warn_throttled = Throttle(warn, clock=clock)
+
+    def check(self, kind: str, names: Sequence[str],
+              values: Sequence[float]) -> Tuple[Optional[List[Goal]], str]:
+        """
+        Validate goals and convert them to raw register values, clamped to the servo's limits.
+
+        Returns (goals, '') or (None, reason); nothing is queued here.
+        """
+        if kind not in model.MODE_KINDS:
+            return None, f'unknown command kind {kind!r}'
+        if len(names) == 0:
+            return None, 'empty command: no joint names'
+        if len(names) != len(values):
+            return None, (f'{len(names)} names but {len(values)} values: they must have the '
+                          'same length')
+        if len(set(names)) != len(names):
+            return None, 'a joint is named twice'
+        if self._port.lost:
+            return None, f'the port is lost ({self._port.error}): no goal can be written'
+        goals = []
+        for name, value in zip(names, values):
+            servo = self._roster.by_name.get(name)
+            if servo is None:
+                return None, f'unknown joint {name!r}'
+            if not servo.online:
+                return None, f'joint {name!r} is not on the bus (missing at configure)'
+            if not math.isfinite(value):
+                return None, f'joint {name!r}: {value} is not a finite number'
+            if servo.switching:
+                return None, f'joint {name!r} is changing its operating mode: try again'
+            if servo.name in self._tasks:
+                return None, (f'joint {name!r} is {servo.status or "busy"}: it takes goals '
+                              'again once that is done')
+            command = servo.units.kinds.get(kind)
+            if command is None:
+                return None, (f'joint {name!r} is a {servo.model.name}, which has no '
+                              f'{model.GOAL_REGISTERS[kind]} register (no {kind} control); '
+                              f'its commands: {", ".join(sorted(servo.units.kinds))}')
+            if kind not in model.MODE_COMMANDS[servo.mode]:
+                return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
+                              'apply to it')
+            if abs(value) > 1e9:
+                return None, f'joint {name!r}: {value} {command.unit} is out of any range'
+            offset = servo.turn_offset if kind == 'position' else 0
+            raw = command.to_raw(value) - offset
+            clamped = _clamp(servo, command.register, raw)
+            if clamped != raw:
+                self._warn_throttled(
+                    f'clamp:{name}:{kind}',
+                    f'joint {name!r}: {kind} goal {value:g} {command.unit} clamped to '
+                    f'{command.to_si(clamped + offset):g} {command.unit} (servo limit)')
+            goals.append((servo, command.register, clamped))
+        return goals, ''
+
+    def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
+        """Queue goals (all or none): written by the next write."""
+        with self.lock:
+            goals, reason = self.check(kind, names, values)
+            if goals is None:
+                return Result(False, reason)
+            now = self._clock()
+            for servo, register, raw in goals:
+                self._queue(servo, register, raw)
+                servo.last_command_s = now
+                servo.timed_out = False
+            return Result(True, f'{len(goals)} {kind} goals queued')
+
+    def check_timeout(self) -> None:
+        """Velocity, current and pwm goals fall back to zero after command_timeout."""
+        timeout = self.config.command_timeout
+        if timeout <= 0.0:
+            return
+        now = self._clock()
+        with self.lock:
+            for servo in self._roster.active():
+                if servo.timed_out or servo.mode in model.POSITION_MODES:
+                    continue
+                if now - servo.last_command_s > timeout:
+                    register = servo.units.kinds[MODE_KIND[servo.mode]].register
+                    if servo.goal_raw.get(register, 0) != 0:
+                        self._queue(servo, register, 0)
+                        self._warn(f'joint {servo.name!r}: no {servo.mode} command for '
+                                   f'{timeout:g} s: goal set to zero')
+                    servo.timed_out = True
+
+    def _queue(self, servo: Servo, register: str, value: int) -> None:
+        self._pending.setdefault(register, {})[servo.servo_id] = value
+        servo.goal_raw[register] = value
+
+    def waiting(self) -> bool:
+        """Return True when goals (or what is left of them) wait to be written."""
+        return bool(self._pending)
+
+    def take(self) -> Pending:
+        """Hand the queued goals to whoever writes them; the queue starts empty again."""
+        with self.lock:
+            pending, self._pending = self._pending, {}
+        return pending
+
+    def clear(self) -> None:
+        """Drop every queued goal."""
+        with self.lock:
+            self._pending.clear()
+
+    def drop(self, servo: Servo) -> None:
+        """Drop the servo's queued goals."""
+        with self.lock:
+            for goals in self._pending.values():
+                goals.pop(servo.servo_id, None)
+
+    def suspend(self, servo: Servo) -> None:
+        """Drop the servo's queued goals and refuse new ones until switching is cleared."""
+        with self.lock:
+            servo.switching = True
+            for goals in self._pending.values():
+                goals.pop(servo.servo_id, None)
+
+
+def _clamp(servo: Servo, register: str, raw: int) -> int:
+    if register == 'goal_position':
+        return clamp_position(servo, raw)
+    bound = servo.limits[servo.model.item(register).limit or '']
+    return min(max(raw, -bound), bound)

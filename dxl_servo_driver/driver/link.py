@@ -1,0 +1,143 @@
+"""
+Transactions outside the cycle on one servo: retried, confirmed, dated, verified.
+
+The link holds the open Bus (None while the port is closed) and is where the driver's
+one-off transactions go: a lost or corrupted reply is tried again, a value the servo changes
+by itself is dated with its Realtime Tick so a late reply never passes for it, and a write that
+matters is read back. A stop request is honoured between two attempts.
+"""
+
+from contextlib import contextmanager
+import time
+from typing import Any, Callable, Iterator, Optional, Tuple
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.driver.servo import Servo, StaleGuard
+from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, Interrupted
+
+# A changing register this close to the Realtime Tick is read with it, to date the reply.
+DATED_SPAN_BYTES = 64
+
+
+def changes_by_itself(item: ct.Item) -> bool:
+    """Return True for registers the servo changes (present values, tick, flags, errors)."""
+    return item.area == 'ram' and (item.access == 'R' or item.name.startswith('indirect_data'))
+
+
+class Link:
+    """The open bus and the one-off transactions on one servo."""
+
+    def __init__(self, attempts: int, should_stop: Callable[[], bool],
+                 stale: StaleGuard) -> None:
+        self.bus: Optional[Bus] = None
+        # Asked between attempts: a signal stops configure and activate promptly.
+        self.should_stop = should_stop
+        self._attempts = attempts
+        self._stale = stale
+
+    def io(self) -> Bus:
+        """Return the open bus; CommError when the port is closed."""
+        if self.bus is None:
+            raise CommError('the bus is not open (the node is not configured)')
+        return self.bus
+
+    @contextmanager
+    def uninterruptible(self) -> Iterator[None]:
+        """Run a block that a stop request must not cut short (the torque-off at the end)."""
+        stop, self.should_stop = self.should_stop, lambda: False
+        try:
+            yield
+        finally:
+            self.should_stop = stop
+
+    def attempt(self, action: Callable[[], Any]) -> Any:
+        """Run a transaction, again on a lost or corrupted reply (ping_retries times in all)."""
+        for attempt in range(self._attempts):
+            if self.should_stop():
+                raise Interrupted('stop requested')
+            try:
+                return action()
+            except (CommTimeout, CorruptReply):
+                if attempt + 1 >= self._attempts:
+                    raise
+
+    def read(self, servo: Servo, name: str) -> int:
+        """Read a register: confirmed when it holds still, dated when it changes by itself."""
+        bus = self.io()
+        item = servo.model.item(name)
+        if not changes_by_itself(item):
+            # Confirmed by a second read: a late reply cannot pass for the value.
+            return int(self.attempt(lambda: bus.read_item(servo.servo_id, item)))
+        return int(self.attempt(lambda: self._read_dated(servo, item)))
+
+    def _read_dated(self, servo: Servo, item: ct.Item) -> int:
+        """Read a value that changes by itself with the Realtime Tick, refusing a late reply."""
+        bus = self.io()
+        tick = servo.model.item('realtime_tick')
+        start = min(tick.address, item.address)
+        end = max(tick.address + tick.size, item.address + item.size)
+        if end - start > DATED_SPAN_BYTES:
+            # Too far from the tick to read both in one go: the length tag is the guard.
+            data = bus.read(servo.servo_id, item.address, item.size, confirm=False)
+            return int.from_bytes(data, 'little', signed=item.signed)
+        data, sent_s = bus.read_fresh(servo.servo_id, start, end - start)
+        at = tick.address - start
+        if not self._stale.check(servo, int.from_bytes(data[at:at + tick.size], 'little'),
+                                 sent_s, time.monotonic()):
+            raise CorruptReply(f'id {servo.servo_id}: a reply older than its request '
+                               '(refused)', servo.servo_id)
+        at = item.address - start
+        return int.from_bytes(data[at:at + item.size], 'little', signed=item.signed)
+
+    def write(self, servo: Servo, name: str, value: int) -> None:
+        """Write a register, keeping what the servo's record says about it."""
+        bus = self.io()
+        item = servo.model.item(name)
+        if name == 'torque_enable' and value:
+            servo.torque_maybe_on = True   # before: the write may land even if its reply is lost
+        self.attempt(lambda: bus.write_item(servo.servo_id, item, value))
+        if name == 'torque_enable' and not value:
+            servo.torque_maybe_on = False
+        elif name == 'homing_offset':
+            servo.homing_offset = value
+
+    def write_verified(self, servo: Servo, name: str, value: int) -> None:
+        """Write a register and read it back; CommError when it does not hold the value."""
+        self.write(servo, name, value)
+        read_back = self.read(servo, name)
+        if read_back != value:
+            raise CommError(f'joint {servo.name!r}: {name} reads back {read_back} after '
+                            f'writing {value}', servo.servo_id)
+
+    def ping(self, servo: Servo) -> int:
+        """Ping (tried again on a lost reply); return the model number."""
+        bus = self.io()
+        return int(self.attempt(lambda: bus.ping(servo.servo_id)))
+
+    def ping_once(self, servo: Servo) -> None:
+        """Ping once: the caller decides what a lost reply means (a booting servo)."""
+        self.io().ping(servo.servo_id)
+
+    def reboot(self, servo: Servo) -> None:
+        """Send REBOOT."""
+        bus = self.io()
+        self.attempt(lambda: bus.reboot(servo.servo_id))
+
+    def clear_multi_turn(self, servo: Servo) -> None:
+        """Send CLEAR (multi-turn): Present Position back within one turn."""
+        bus = self.io()
+        self.attempt(lambda: bus.clear_multi_turn(servo.servo_id))
+
+    def write_indirect_map(self, servo: Servo) -> None:
+        """Write the indirect map that lays the servo's registers out as its state block."""
+        bus = self.io()
+        block = servo.block
+        self.attempt(lambda: bus.write(servo.servo_id, block.indirect_map_address(),
+                                       block.indirect_map_bytes()))
+
+    def read_block(self, servo: Servo) -> Tuple[int, ...]:
+        """Read the whole state block once, fresh (a probe: no retry)."""
+        block = servo.block
+        return block.decode(self.io().read_fresh(servo.servo_id, block.read_address,
+                                                 block.size)[0])

@@ -1,0 +1,295 @@
+"""
+Getting servos back: restarts, reboots, hardware errors, servos lost with the adapter.
+
+A servo that restarted on its own (power cut, brown-out), was rebooted, or lost power with the
+adapter gets its configuration back step by step, as a task the cycle steps in the time it has
+left, so it never stalls the others; it then holds where it is, its lost whole turns kept. A
+failed restore is tried again until it works. A lost port stops the cycle's bus work (the node
+stays up) until the adapter comes back; every servo then rejoins on its own.
+"""
+
+from typing import Any, Callable, List, Optional
+
+from dxl_servo_driver.bus import Bus, RawPort
+from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver.cycle import Cycle
+from dxl_servo_driver.driver.goals import Goals
+from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.servo import (
+    IDX_CANARY, IDX_HW_ERROR, Log, ManagerError, PortState, Roster, Servo, Throttle)
+from dxl_servo_driver.driver.setup import Setup
+from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.tasks import Steps, Task, TaskRunner
+from dxl_servo_driver.transports import PortFactory
+
+BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
+BOOT_POLL_S = 0.02        # between two pings of a booting servo
+RETRY_BACKOFF_S = 0.5     # a failed restore is tried again after this
+REJOIN_INTERVAL_S = 1.0   # a servo missing after the adapter came back is probed this often
+
+
+class Recovery:
+    """The restore, reboot and rejoin tasks, and what their outcome means."""
+
+    def __init__(self, config: DriverConfig, roster: Roster, link: Link, setup: Setup,
+                 goals: Goals, cycle: Cycle, tasks: TaskRunner, port: PortState,
+                 clock: Callable[[], float], info: Log, warn: Log) -> None:
+        self.config = config
+        self._roster = roster
+        self._link = link
+        self._setup = setup
+        self._goals = goals
+        self._cycle = cycle
+        self._tasks = tasks
+        self._port = port
+        self._clock = clock
+        self._info = info
+        self._warn = warn
+        self._warn_throttled = Throttle(warn, clock=clock)
+        self.recoveries = 0
+
+    # the steps ------------------------------------------------------------------------------
+    def restarted(self, servo: Servo) -> None:
+        """Restore a servo that restarted on its own (power cut, brown-out), step by step."""
+        if servo.name in self._tasks:
+            return
+        servo.restarts += 1
+        self._warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
+                   'restoring its configuration and mode; it will hold where it is')
+        self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()))
+
+    def restore(self, servo: Servo, last_joint_pulses: Optional[int]) -> Steps:
+        """
+        Give a restarted servo its setup back and make it hold where it is.
+
+        The servo's RAM is back to its defaults and its position was re-initialised within one
+        turn: the configuration is written again, the lost whole turns go into the joint's turn
+        offset (assuming the horn moved less than half a turn while it was down), and it holds
+        where it is (goal = present; velocity, current and PWM goals 0): a goal nobody sent
+        again is never replayed, a wheel does not start turning again by itself.
+        """
+        servo.tick.reset()
+        servo.status = 'restoring'
+        yield from self._setup.apply_configuration(servo)
+        present = self._link.read(servo, 'present_position')
+        yield
+        if servo.mode == 'position':
+            servo.turn_offset = 0
+        elif last_joint_pulses is not None:
+            servo.turn_offset = servo.units.kept_turns(last_joint_pulses, present)
+        for register in list(servo.goal_raw):
+            if register != 'goal_current' or servo.mode != 'current_based_position':
+                del servo.goal_raw[register]
+        yield from self._setup.hold(servo)
+        servo.status = ''
+
+    def reboot(self, servo: Servo) -> Steps:
+        """REBOOT one servo, wait for it to boot, give it its setup back holding where it is."""
+        servo.status = 'rebooting'
+        last = servo.last_joint_pulses()
+        link = self._link
+        try:
+            last = servo.joint_pulses(link.read(servo, 'present_position'))
+            yield
+        except (CommTimeout, CorruptReply, StatusError):
+            pass   # a servo in trouble may not answer reads: the last good state will do
+        servo.torque_maybe_on = False   # a reboot clears torque enable
+        link.reboot(servo)
+        servo.tick.reset()   # its Realtime Tick starts again from 0
+        yield
+        deadline = self._clock() + BOOT_TIMEOUT_S
+        next_ping = self._clock() + BOOT_POLL_S
+        while True:
+            while self._clock() < next_ping:
+                yield   # booting: nothing to ask yet
+            try:
+                link.ping_once(servo)
+                break
+            except CommTimeout:
+                if self._clock() > deadline:
+                    raise CommTimeout(f'id {servo.servo_id}: did not answer within '
+                                      f'{BOOT_TIMEOUT_S:g} s of its reboot', servo.servo_id)
+                next_ping = self._clock() + BOOT_POLL_S
+                yield
+        yield from self.restore(servo, last)
+
+    def rejoin(self, servo: Servo) -> Steps:
+        """After the adapter came back: find the servo, restore it if it lost power."""
+        servo.status = 'not answering since the adapter came back'
+        self._link.ping_once(servo)
+        yield
+        values = self._link.read_block(servo)
+        yield
+        servo.status = ''
+        if values[IDX_CANARY] != 0:
+            servo.tick.reset()
+            return   # it kept its power and its setup: it holds what it held
+        servo.restarts += 1
+        yield from self.restore(servo, servo.last_joint_pulses())
+
+    # the tasks ------------------------------------------------------------------------------
+    def start(self, servo: Servo, kind: str, steps: Steps, not_before_s: float = 0.0) -> Task:
+        """Start a task on a servo: out of the cycle's read, its queued goals dropped."""
+        servo.fresh = False
+        self._goals.drop(servo)
+        task = self._tasks.add(Task(servo.name, kind, steps, not_before_s))
+        self._cycle.refresh()
+        return task
+
+    def task_done(self, task: Task) -> None:
+        """Take a servo that finished its task back into the cycle."""
+        servo = self._roster.by_name[task.joint]
+        servo.status = ''
+        self._cycle.want_full()
+        self._cycle.refresh()
+        if task.kind == 'restore':
+            self._info(f'joint {servo.name!r}: restored after its restart, holding where it is')
+        elif task.kind == 'recover':
+            servo.health_time = 0.0
+            self._info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+        elif task.kind == 'rejoin':
+            self._info(f'joint {servo.name!r}: answering again')
+
+    def task_failed(self, task: Task, exc: Exception) -> None:
+        """Try a failed restore or probe again later; a lost port propagates to the cycle."""
+        servo = self._roster.by_name[task.joint]
+        if isinstance(exc, PortError):
+            raise exc
+        if task.kind == 'reboot':
+            servo.status = ''
+            self._cycle.refresh()
+            return   # the service that asked reports it
+        # Restores and probes are tried again until they work: the servo is of no use before.
+        retry = REJOIN_INTERVAL_S if task.kind == 'rejoin' else RETRY_BACKOFF_S
+        self._warn_throttled(f'task:{servo.name}',
+                             f'joint {servo.name!r}: {task.kind} failed ({exc}); trying again')
+        steps = (self.rejoin(servo) if task.kind == 'rejoin'
+                 else self.restore(servo, servo.last_joint_pulses()))
+        self.start(servo, task.kind if task.kind != 'recover' else 'restore', steps,
+                   self._clock() + retry)
+
+    def recover_hardware_errors(self) -> None:
+        """With hardware_error_recovery: reboot a faulty servo alone, rate-limited, restored."""
+        if not self.config.hardware_error_recovery:
+            return
+        now = self._clock()
+        for servo in self._roster.active():
+            state = servo.state
+            if (not servo.health_time or state is None or not state[IDX_HW_ERROR]
+                    or servo.name in self._tasks):
+                continue
+            if now - servo.last_recovery_s < self.config.recovery_interval:
+                continue
+            servo.last_recovery_s = now
+            servo.recoveries += 1
+            self.recoveries += 1
+            errors = ', '.join(servo.model.decode_hardware_errors(state[IDX_HW_ERROR]))
+            self._warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
+                       f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
+            self.start(servo, 'recover', self.reboot(servo))
+
+    def start_reboots(self, servos: List[Servo]) -> List[Task]:
+        """Start a reboot task for each servo."""
+        return [self.start(servo, 'reboot', self.reboot(servo)) for servo in servos]
+
+    def run_to_end(self, tasks: List[Task]) -> None:
+        """Run tasks here to their end (nobody else steps them); failures stay in task.error."""
+        for task in tasks:
+            if not task.done:
+                try:
+                    task.run_to_end()
+                except Exception:  # noqa: B902 - reported from task.error by the caller
+                    pass
+                self._tasks.cancel_all('done', [task.joint])
+        self._cycle.refresh()
+
+    def restore_later(self, servo: Servo) -> None:
+        """Restore in the background a servo a failed reboot may have left unconfigured."""
+        if servo.name not in self._tasks and not self._port.lost:
+            self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()),
+                       self._clock() + RETRY_BACKOFF_S)
+
+
+class PortWatch:
+    """The port: opened at configure, watched for loss, reopened when the device returns."""
+
+    def __init__(self, config: DriverConfig, factory: PortFactory, state: PortState,
+                 roster: Roster, link: Link, goals: Goals, cycle: Cycle, tasks: TaskRunner,
+                 recovery: Recovery, clock: Callable[[], float], info: Log,
+                 error: Log) -> None:
+        self.config = config
+        self.factory = factory
+        self.port: Optional[RawPort] = None
+        self.sim_bus: Any = None   # the SimBus behind `port: sim`
+        self.reconnect_interval_s = 1.0
+        self._next_reconnect_s = 0.0
+        self._state = state
+        self._roster = roster
+        self._link = link
+        self._goals = goals
+        self._cycle = cycle
+        self._tasks = tasks
+        self._recovery = recovery
+        self._clock = clock
+        self._info = info
+        self._error = error
+
+    def connect(self) -> None:
+        """Open the port and the bus on it; ManagerError when the port cannot be opened."""
+        try:
+            self.port, self.sim_bus = self.factory(self.config)
+        except PortError as exc:
+            raise ManagerError(str(exc)) from None
+        self._link.bus = Bus(self.port, self.config.baud_rate,
+                             latency_timer_s=self.config.latency_timer / 1000.0)
+        self._state.lost = False
+
+    def lose(self, exc: PortError) -> None:
+        """Take the port as gone: goals and tasks dropped, nothing fresh, reconnection due."""
+        if self._state.lost:
+            return
+        self._state.lost = True
+        self._state.error = str(exc)
+        self._goals.clear()
+        self._tasks.cancel_all('the port was lost')
+        for servo in self._roster.order:
+            servo.fresh = False
+            servo.status = ''
+        self._cycle.refresh()
+        self._error(f'{self.config.port}: {exc}. The node stays up and reconnects when the '
+                    'device returns; pending goals were dropped.')
+        if self.sim_bus is None and self._link.bus is not None:
+            self._link.bus.close()
+        self._next_reconnect_s = self._clock() + self.reconnect_interval_s
+
+    def reconnect(self) -> bool:
+        """
+        Try to get the port back; True when it is.
+
+        Every servo then rejoins on its own (a task each): one that kept its power goes on
+        holding what it held, one that lost it is restored to hold where it is, and one that
+        does not answer is probed every second without holding up the others.
+        """
+        now = self._clock()
+        if now < self._next_reconnect_s:
+            return False
+        self._next_reconnect_s = now + self.reconnect_interval_s
+        bus = self._link.io()
+        try:
+            if self.sim_bus is None:
+                # A real adapter comes back as a new device: open it again.
+                self.port, _ = self.factory(self.config)
+                bus.port = self.port
+            else:
+                bus.port.in_waiting   # raises while the simulated adapter is unplugged
+        except (PortError, CommError, OSError):
+            return False
+        self._state.lost = False
+        self._state.error = ''
+        self._cycle.want_full()
+        bus.mark_dirty()
+        for servo in self._roster.active():
+            self._recovery.start(servo, 'rejoin', self._recovery.rejoin(servo))
+        self._info(f'{self.config.port}: port back; checking {len(self._roster.active())} '
+                   'servos')
+        return True

@@ -1,0 +1,242 @@
+"""
+The requests of the node's services: goals written at once, torque, mode, reboot, registers.
+
+Each takes the manager's lock for its bus work (the cycle waits meanwhile), refuses with the
+reason and writes nothing when the request cannot be done as it stands, and answers a failed
+transaction with a message rather than an exception; a lost port is handled on the way.
+"""
+
+import threading
+from typing import Callable, List, Optional, Sequence, Tuple
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+from dxl_servo_driver import models
+from dxl_servo_driver.driver.cycle import Cycle
+from dxl_servo_driver.driver.goals import Goals
+from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.recovery import PortWatch, Recovery
+from dxl_servo_driver.driver.servo import PortState, Result, Roster, run, Servo
+from dxl_servo_driver.driver.setup import Setup
+from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.tasks import Task, TaskRunner
+
+
+class Services:
+    """Requests on named joints, serialised with the cycle by the manager's lock."""
+
+    def __init__(self, lock: threading.RLock, roster: Roster, link: Link, setup: Setup,
+                 goals: Goals, cycle: Cycle, recovery: Recovery, tasks: TaskRunner,
+                 port: PortState, ports: PortWatch) -> None:
+        self._lock = lock
+        self._roster = roster
+        self._link = link
+        self._setup = setup
+        self._goals = goals
+        self._cycle = cycle
+        self._recovery = recovery
+        self._tasks = tasks
+        self._port = port
+        self._ports = ports
+
+    def command_now(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
+        """Write goals at once (service path): answered after they were written."""
+        with self._lock:
+            result = self._goals.command(kind, names, values)
+            if not result.success:
+                return result
+            try:
+                self._cycle.write_pending()
+            except PortError as exc:
+                self._ports.lose(exc)
+                return Result(False, f'goals not written: {exc}')
+            except CommError as exc:
+                return Result(False, f'goals not written: {exc}')
+            return Result(True, f'{len(names)} {kind} goals written')
+
+    def _servos_named(self, names: Sequence[str]) -> Tuple[Optional[List[Servo]], str]:
+        if self._port.lost:
+            return None, f'the port is lost ({self._port.error}); try again when it is back'
+        if not names:
+            servos = self._roster.active()
+        else:
+            servos = []
+            for name in names:
+                servo = self._roster.by_name.get(name)
+                if servo is None:
+                    return None, f'unknown joint {name!r}'
+                if not servo.online:
+                    return None, f'joint {name!r} is not on the bus'
+                servos.append(servo)
+        for servo in servos:
+            if servo.name in self._tasks:
+                return None, (f'joint {servo.name!r} is {servo.status or "busy"}: try '
+                              'again in a moment')
+        return servos, ''
+
+    def _request(self, what: str, action: Callable[[], Result]) -> Result:
+        """Run a service's bus work: a lost port is handled, a bus failure is the answer."""
+        try:
+            return action()
+        except PortError as exc:
+            self._ports.lose(exc)
+            return Result(False, f'{what} failed: {exc}')
+        except Interrupted:
+            return Result(False, f'{what} interrupted: the node is stopping')
+
+    def set_torque(self, names: Sequence[str], enable: bool) -> Result:
+        """Torque on (goal = present first) or off."""
+        with self._lock:
+            servos, reason = self._servos_named(names)
+            if servos is None:
+                return Result(False, reason)
+            word = 'on' if enable else 'off'
+
+            def action() -> Result:
+                try:
+                    for servo in servos:
+                        servo.torque_wanted = enable
+                        self._goals.drop(servo)
+                        if enable:
+                            run(self._setup.hold(servo))
+                        else:
+                            self._link.write(servo, 'torque_enable', 0)
+                except CommError as exc:
+                    return Result(False, f'torque {word} failed: {exc}')
+                return Result(True, f'torque {word} for {", ".join(s.name for s in servos)}')
+            return self._request(f'torque {word}', action)
+
+    def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
+        """Torque off, mode, what a mode change resets re-applied, goal = present, torque back."""
+        with self._lock:
+            if mode not in ct.OPERATING_MODES:
+                return Result(False, f'unknown operating mode {mode!r} (one of '
+                              f'{", ".join(ct.OPERATING_MODES)})')
+            if not names:
+                return Result(False, 'no joint named')
+            servos, reason = self._servos_named(names)
+            if servos is None:
+                return Result(False, reason)
+            for servo in servos:
+                if mode not in servo.model.modes:
+                    return Result(False, f'joint {servo.name!r} is a {servo.model.name}, which '
+                                  f'has no {mode} mode (its modes: '
+                                  f'{", ".join(servo.model.modes)})')
+            done: List[str] = []
+
+            def action() -> Result:
+                try:
+                    for servo in servos:
+                        # Commands wait while it switches: its goals would be in the old mode.
+                        self._goals.suspend(servo)
+                        run(self._setup.switch_mode(servo, mode))
+                        done.append(servo.name)
+                except CommError as exc:
+                    for servo in servos:
+                        self._setup.resync_mode(servo)
+                    return Result(False, f'mode change failed after {done or "no joint"}: {exc}')
+                finally:
+                    for servo in servos:
+                        servo.switching = False
+                return Result(True, f'{", ".join(done)} now in {mode} mode')
+            return self._request('mode change', action)
+
+    def reboot(self, names: Sequence[str], wait: Optional[Callable[[List[Task]], None]] = None
+               ) -> Result:
+        """
+        Reboot, then configuration and mode restored, holding where it is, torque as it was.
+
+        The reboots run as tasks the cycle steps through (the others are read and published
+        meanwhile); wait(tasks) blocks until they ended. Without wait (nobody else runs the
+        cycle), they run here to their end.
+        """
+        with self._lock:
+            servos, reason = self._servos_named(names)
+            if servos is None:
+                return Result(False, reason)
+            # A joint named twice is rebooted once.
+            servos = list({servo.name: servo for servo in servos}.values())
+            tasks = self._recovery.start_reboots(servos)
+            if wait is None:
+                self._recovery.run_to_end(tasks)
+        if wait is not None:
+            wait(tasks)
+        with self._lock:
+            failed = [f'{t.joint}: {t.error}' for t in tasks if t.error is not None]
+            for task in tasks:
+                if task.error is None:
+                    continue
+                # A servo whose reboot failed part-way may be unconfigured.
+                if isinstance(task.error, PortError):
+                    self._ports.lose(task.error)
+                else:
+                    self._recovery.restore_later(self._roster.by_name[task.joint])
+            self._cycle.want_full()
+        if failed:
+            return Result(False, 'reboot failed: ' + '; '.join(failed))
+        return Result(True, f'rebooted and restored {", ".join(s.name for s in servos)}')
+
+    def read_register(self, name: str, register: str) -> Tuple[Optional[int], str]:
+        """Read one register by snake_case name or decimal address: (value, message)."""
+        with self._lock:
+            servos, reason = self._servos_named([name]) if name else (None, 'no joint named')
+            if servos is None:
+                return None, reason
+            item, reason = _register(servos[0].model, register)
+            if item is None:
+                return None, reason
+            try:
+                value = self._link.read(servos[0], item.name)
+            except PortError as exc:
+                self._ports.lose(exc)
+                return None, str(exc)
+            except CommError as exc:
+                return None, str(exc)
+            return value, f'{name}.{item.name} (address {item.address}) = {value}'
+
+    def write_register(self, name: str, register: str, value: int) -> Result:
+        """Write one register; EEPROM while torque is on is refused with the reason."""
+        with self._lock:
+            servos, reason = self._servos_named([name]) if name else (None, 'no joint named')
+            if servos is None:
+                return Result(False, reason)
+            servo = servos[0]
+            item, reason = _register(servo.model, register)
+            if item is None:
+                return Result(False, reason)
+            try:
+                model.writable_register(servo.model, item.name, runtime=True)
+                model.check_range(item, value)
+            except ValueError as exc:
+                return Result(False, str(exc))
+            link = self._link
+
+            def action() -> Result:
+                try:
+                    context = dict(servo.limits)
+                    context['homing_offset'] = servo.homing_offset
+                    for other in model.related_registers(servo.model, item.name):
+                        if other not in context:
+                            context[other] = link.read(servo, other)
+                    model.check_register_set(context, item.name, value, servo.mode)
+                    if item.area == 'eeprom' and link.read(servo, 'torque_enable'):
+                        return Result(False, f'{item.name} is in EEPROM, which the servo locks '
+                                      'while torque is on: call set_torque with enable=false '
+                                      'first')
+                    link.write(servo, item.name, value)
+                except ValueError as exc:
+                    return Result(False, str(exc))
+                except CommError as exc:
+                    return Result(False, str(exc))
+                if item.name in servo.limits:
+                    servo.limits[item.name] = value
+                return Result(True, f'{name}.{item.name} (address {item.address}) = {value}')
+            return self._request('write', action)
+
+
+def _register(table: models.Model, key: str) -> Tuple[Optional[ct.Item], str]:
+    key = key.strip()
+    try:
+        return table.lookup(int(key) if key.isascii() and key.isdigit() else key), ''
+    except KeyError as exc:
+        return None, str(exc.args[0])

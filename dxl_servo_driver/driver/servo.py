@@ -1,0 +1,199 @@
+"""
+What the driver knows of each servo, and the small pieces every part of it shares.
+
+The servo table (Roster) is the one state the parts share: each part is handed it, and the
+fields of a Servo say which part writes them.
+"""
+
+from dataclasses import dataclass, field
+import time
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+from dxl_servo_driver import models
+from dxl_servo_driver.config import JointConfig
+from dxl_servo_driver.errors import Refused
+from dxl_servo_driver.model import StateBlock, TickClock
+from dxl_servo_driver.models.units import Units, units_for
+from dxl_servo_driver.tasks import Steps
+
+Log = Callable[[str], None]
+BLOCK = model.BLOCK_SHAPE   # decodes every model's block; where it lives is Servo.block
+_I = BLOCK.index
+IDX_POSITION = _I['present_position']
+IDX_VELOCITY = _I['present_velocity']
+IDX_EFFORT = _I['effort']   # present_current, or present_load on models without current
+IDX_TICK = _I['realtime_tick']
+IDX_PWM = _I['present_pwm']
+IDX_VOLTAGE = _I['present_input_voltage']
+IDX_TEMPERATURE = _I['present_temperature']
+IDX_MOVING = _I['moving']
+IDX_MOVING_STATUS = _I['moving_status']
+IDX_HW_ERROR = _I['hardware_error_status']
+IDX_TORQUE = _I['torque_enable']
+IDX_CANARY = BLOCK.canary_index
+WARN_INTERVAL_S = 2.0
+
+# The command kind each operating mode takes its goals in.
+MODE_KIND = {'velocity': 'velocity', 'current': 'current', 'pwm': 'pwm',
+             'position': 'position', 'extended_position': 'position',
+             'current_based_position': 'position'}
+
+
+class ManagerError(Refused):
+    """A failure the user must act on (missing servo, wrong model, port), said in one line."""
+
+
+@dataclass
+class Servo:
+    """What the manager knows of one configured servo."""
+
+    joint: JointConfig
+    mode: str
+    # The table, units and state block of the model it answered with at configure (before:
+    # the configured model, or the seed's).
+    model: models.Model
+    units: Units
+    block: StateBlock
+    model_number: int = 0
+    firmware_version: int = 0
+    online: bool = False            # answered at configure (or since)
+    state: Optional[Tuple[int, ...]] = None   # last good state block (raw)
+    health_time: float = 0.0        # time of the last whole-block read (0 = health unknown)
+    fresh: bool = False             # state was read in the latest cycle
+    comm_errors: int = 0
+    consecutive_failures: int = 0
+    stale_refused: int = 0          # samples refused as older than their request
+    torque_wanted: bool = False
+    torque_maybe_on: bool = False   # a torque-on was sent and no torque-off confirmed since
+    goal_raw: Dict[str, int] = field(default_factory=dict)   # last goal written, per register
+    last_command_s: float = 0.0     # for command_timeout
+    timed_out: bool = False
+    limits: Dict[str, int] = field(default_factory=dict)
+    homing_offset: int = 0          # the servo's Homing Offset, as last read or written
+    # Whole turns (pulses) the driver adds to Present Position and takes from position goals,
+    # so the joint's position stays continuous when the servo re-initialises it (torque on,
+    # mode change, reboot, power cut). Always 0 in position mode (single turn).
+    turn_offset: int = 0
+    tick: TickClock = field(default_factory=TickClock)
+    restarts: int = 0
+    switching: bool = False         # a mode switch is under way: commands wait for it
+    recoveries: int = 0
+    last_recovery_s: float = -1e9
+    status: str = ''                # what is being done to it (restoring, rebooting, ...)
+
+    @property
+    def name(self) -> str:
+        """Return the joint name."""
+        return self.joint.name
+
+    @property
+    def servo_id(self) -> int:
+        """Return the servo id."""
+        return self.joint.servo_id
+
+    def joint_pulses(self, raw: int) -> int:
+        """Return a Present Position value in the joint's continuous frame (turns kept)."""
+        return raw + self.turn_offset
+
+    def last_joint_pulses(self) -> Optional[int]:
+        """Return the last position read, in the joint's frame; None if never read."""
+        return self.state[IDX_POSITION] + self.turn_offset if self.state is not None else None
+
+    def set_model(self, table: models.Model) -> None:
+        """Take the table, units and state block of a model."""
+        self.model = table
+        self.units = units_for(table, self.joint.torque_constant_nm_per_a)
+        self.block = model.state_block(table, self.units.effort_register)
+
+    @classmethod
+    def of(cls, joint: JointConfig) -> 'Servo':
+        """Return the servo of a joint, with the configured model's table (or the seed's)."""
+        table = joint.model or models.model_for(ct.MODEL_NUMBER)
+        units = units_for(table, joint.torque_constant_nm_per_a)
+        return cls(joint, joint.operating_mode, table, units,
+                   model.state_block(table, units.effort_register))
+
+
+class Roster:
+    """The configured servos: by joint name, in configuration order, by id."""
+
+    def __init__(self, joints: Sequence[JointConfig]) -> None:
+        self.by_name: Dict[str, Servo] = {joint.name: Servo.of(joint) for joint in joints}
+        self.order: List[Servo] = [self.by_name[joint.name] for joint in joints]
+        self.by_id: Dict[int, Servo] = {servo.servo_id: servo for servo in self.order}
+
+    def active(self) -> List[Servo]:
+        """Return the servos that answered at configure."""
+        return [servo for servo in self.order if servo.online]
+
+
+@dataclass
+class PortState:
+    """Whether the adapter is lost (written by the port watch, read by whoever refuses)."""
+
+    lost: bool = False
+    error: str = ''
+
+
+@dataclass
+class Result:
+    """The outcome of a request: success and a message meant for a person."""
+
+    success: bool
+    message: str
+
+
+class Throttle:
+    """At most one message per key per interval."""
+
+    def __init__(self, log: Log, interval_s: float = WARN_INTERVAL_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._log = log
+        self._interval_s = interval_s
+        self._clock = clock
+        self._last: Dict[str, float] = {}
+
+    def __call__(self, key: str, message: str) -> None:
+        """Log message unless the same key was logged within the interval."""
+        now = self._clock()
+        last = self._last.get(key)
+        if last is not None and now - last < self._interval_s:
+            return
+        self._last[key] = now
+        self._log(message)
+
+
+class StaleGuard:
+    """Refuses samples older than their request (a late reply of an earlier one), counted."""
+
+    def __init__(self, warn: Log, clock: Callable[[], float] = time.monotonic) -> None:
+        self._warn_throttled = Throttle(warn, clock=clock)
+        self.refused = 0
+
+    def check(self, servo: Servo, tick: int, sent_s: float, received_s: float) -> bool:
+        """Return True when the sample's Realtime Tick dates it after its request."""
+        if servo.tick.check(tick, sent_s, received_s):
+            return True
+        servo.fresh = False
+        servo.stale_refused += 1
+        self.refused += 1
+        self._warn_throttled(f'stale:{servo.name}',
+                             f'joint {servo.name!r}: refused a reply older than its request '
+                             '(a late reply of an earlier one); nothing published for it')
+        return False
+
+
+def clamp_position(servo: Servo, raw: int) -> int:
+    """Return a Goal Position within the servo's limits (position mode) or the register's."""
+    if servo.mode == 'position' and servo.limits:
+        return min(max(raw, servo.limits['min_position_limit']),
+                   servo.limits['max_position_limit'])
+    return min(max(raw, -ct.EXTENDED_POSITION_LIMIT), ct.EXTENDED_POSITION_LIMIT)
+
+
+def run(steps: Steps) -> None:
+    """Run an activity's steps to the end, at once (a synchronous caller)."""
+    for _ in steps:
+        pass

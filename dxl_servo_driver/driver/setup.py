@@ -1,0 +1,285 @@
+"""
+Bringing servos to a known state: discovery, configuration, hold, mode switch, turns kept.
+
+Configuration is applied and verified before anything moves: the model checked against the
+file, EEPROM written only where it differs and read back, the RAM registers and the indirect
+map written (the servo loses them at every reboot). A servo is enabled only once it holds
+where it is (goal = present), and the whole turns the servo forgets when it re-initialises
+Present Position are kept in the joint's turn offset. The long activities are steps
+(generators, one transaction between two yields) that tasks.py or a synchronous caller runs.
+"""
+
+from typing import Callable, Generator, List, Optional
+
+from dxl_servo_driver import control_table as ct
+from dxl_servo_driver import model
+from dxl_servo_driver import models
+from dxl_servo_driver.config import check_joint_against, DriverConfig
+from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.servo import (
+    clamp_position, Log, ManagerError, MODE_KIND, Roster, run, Servo)
+from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.tasks import Steps
+
+# Read at configure and kept: the bounds goals are clamped to (those the model has).
+LIMIT_REGISTERS = ('min_position_limit', 'max_position_limit', 'velocity_limit',
+                   'current_limit', 'pwm_limit')
+
+
+class Setup:
+    """Configuration, activation and mode switches of the servos, over the link."""
+
+    def __init__(self, config: DriverConfig, roster: Roster, link: Link,
+                 clock: Callable[[], float], info: Log, warn: Log) -> None:
+        self.config = config
+        self._roster = roster
+        self._link = link
+        self._clock = clock
+        self._info = info
+        self._warn = warn
+
+    # configure ------------------------------------------------------------------------------
+    def configure(self) -> None:
+        """Find and verify every servo, apply its configuration, learn the return delay."""
+        self._find_servos()
+        for servo in self._roster.order:
+            if servo.online:
+                run(self.apply_configuration(servo))
+        self._set_return_delay()
+
+    def _find_servos(self) -> None:
+        missing = []
+        for servo in self._roster.order:
+            try:
+                model_number = self._link.ping(servo)
+            except (CommTimeout, CorruptReply) as exc:
+                missing.append((servo, exc))
+                continue
+            self._take_model(servo, model_number)
+            servo.online = True
+            errors = self._link.read(servo, 'hardware_error_status')
+            if errors:
+                self._warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
+                           f'latched: {", ".join(servo.model.decode_hardware_errors(errors))} '
+                           '(a reboot clears them)')
+            self._info(f'found joint {servo.name!r}: id {servo.servo_id}, {servo.model.name} '
+                       f'(model {model_number}), firmware {servo.firmware_version}, '
+                       f'mode {servo.mode}')
+        for servo, failure in missing:
+            message = (f'joint {servo.name!r}: servo id {servo.servo_id} did not answer '
+                       f'{self.config.ping_retries} pings at {self.config.baud_rate} bps '
+                       f'({failure}); check the id, the baud rate, the power and the cable')
+            if self.config.missing_servo == 'refuse':
+                raise ManagerError(message)
+            self._warn(message + '; starting without it (missing_servo: skip)')
+        if not self._roster.active():
+            raise ManagerError('no configured servo answered')
+
+    def _take_model(self, servo: Servo, model_number: int) -> None:
+        """Choose the servo's table by the model and firmware it answered with, or refuse."""
+        where = f'joint {servo.name!r}: id {servo.servo_id}'
+        reason = models.unsupported_reason(model_number)
+        if reason:
+            raise ManagerError(f'{where}: {reason}')
+        wanted = servo.joint.model
+        if wanted is not None and wanted.number != model_number:
+            other = models.model_for(model_number)
+            raise ManagerError(f'{where} is a {other.name} (model {model_number}), but the '
+                               f'configuration says {servo.joint.name}.model {wanted.name}; '
+                               'refusing to drive it with another control table')
+        # The firmware picks the table where it differs (X330): read it from the seed's
+        # address, which every X-series table shares.
+        servo.model_number = model_number
+        servo.set_model(models.model_for(model_number))
+        servo.firmware_version = self._link.read(servo, 'firmware_version')
+        servo.set_model(models.model_for(model_number, servo.firmware_version))
+        problem = check_joint_against(servo.joint, servo.model)
+        if problem:
+            raise ManagerError(f'{where} is a {servo.model.name}: {problem}')
+
+    def apply_configuration(self, servo: Servo) -> Steps:
+        """Mode, EEPROM (only where it differs), RAM registers, indirect map; torque stays off."""
+        link = self._link
+        link.write(servo, 'torque_enable', 0)
+        yield
+        wanted = {'operating_mode': servo.model.modes[servo.mode]}
+        wanted.update(servo.joint.register_dict())
+        changed = []
+        for name, value in wanted.items():
+            if servo.model.item(name).area != 'eeprom':
+                continue
+            current = link.read(servo, name)
+            yield
+            if current != value:
+                link.write_verified(servo, name, value)
+                changed.append(f'{name}={value}')
+                yield
+        if changed:
+            self._info(f'joint {servo.name!r}: EEPROM written: {", ".join(changed)}')
+        servo.homing_offset = link.read(servo, 'homing_offset')
+        yield
+        yield from self._apply_ram(servo)
+
+    def _apply_ram(self, servo: Servo) -> Steps:
+        """RAM configuration and the indirect map (lost at every reboot)."""
+        link = self._link
+        for name, value in servo.joint.registers:
+            if servo.model.item(name).area == 'ram':
+                link.write_verified(servo, name, value)
+                yield
+        link.write_indirect_map(servo)
+        yield
+        for name in LIMIT_REGISTERS:
+            if servo.model.has(name):
+                servo.limits[name] = link.read(servo, name)
+                yield
+
+    def _set_return_delay(self) -> None:
+        delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]
+        self._link.io().return_delay_s = max(delays, default=250) * 2e-6
+
+    # hold and torque ------------------------------------------------------------------------
+    def activate(self, servos: List[Servo]) -> None:
+        """Goal = present for every servo, then torque on (if torque_on_start)."""
+        for servo in servos:
+            servo.torque_wanted = self.config.torque_on_start
+            try:
+                run(self.hold(servo))
+            except (PortError, CommError) as exc:
+                raise ManagerError(f'activation failed: {exc}') from None
+
+    def hold(self, servo: Servo) -> Steps:
+        """
+        Make the servo hold where it is (per mode), then set torque as wanted.
+
+        Torque on re-initialises Present Position within one turn (the seed), so in the position
+        modes the goal written first must be in that frame: the servo is brought there before
+        (CLEAR, or the seed's formula when it cannot clear), and the whole turns it loses are
+        kept in the joint's turn offset. After torque on the position is read again, and a
+        frame change nobody predicted is caught at once.
+        """
+        link = self._link
+        torque = link.read(servo, 'torque_enable')
+        yield
+        present = link.read(servo, 'present_position')
+        yield
+        goal: Optional[int] = None
+        if servo.mode in model.POSITION_MODES:
+            if not torque and servo.torque_wanted:
+                present = yield from self._into_one_turn(servo, present)
+            goal = clamp_position(servo, present)
+            link.write(servo, 'goal_position', goal)
+            servo.goal_raw['goal_position'] = goal
+            yield
+            if servo.mode == 'current_based_position':
+                current = _cbp_current(servo)
+                link.write(servo, 'goal_current', current)
+                servo.goal_raw['goal_current'] = current
+                yield
+        else:
+            register = servo.units.kinds[MODE_KIND[servo.mode]].register
+            # A mode change sets goal_current / goal_pwm to their limits: never enable with that.
+            link.write(servo, register, 0)
+            servo.goal_raw[register] = 0
+            yield
+        if servo.torque_wanted and not torque:
+            link.write(servo, 'torque_enable', 1)
+            yield
+            after = link.read(servo, 'present_position')
+            yield
+            if abs(after - present) >= servo.units.pulses_per_rev // 2:
+                keep_turns(servo, present, after)
+                if goal is not None:
+                    goal = clamp_position(servo, after)
+                    link.write(servo, 'goal_position', goal)
+                    servo.goal_raw['goal_position'] = goal
+                    yield
+        elif not servo.torque_wanted and torque:
+            link.write(servo, 'torque_enable', 0)
+            yield
+        servo.last_command_s = self._clock()
+        servo.timed_out = False
+
+    def _into_one_turn(self, servo: Servo, present: int) -> Generator[None, None, int]:
+        """Bring Present Position within one turn before torque on; return its new value."""
+        homing = servo.homing_offset
+        if homing <= present < homing + servo.units.pulses_per_rev:
+            return present
+        try:
+            self._link.clear_multi_turn(servo)
+            yield
+            after = self._link.read(servo, 'present_position')
+            yield
+        except StatusError:
+            # CLEAR refused (the horn is moving, or an older firmware): torque on will do the
+            # same re-initialisation, by the seed's formula.
+            after = servo.units.reinit_position(present, homing)
+        keep_turns(servo, present, after)
+        return after
+
+    # mode switch ----------------------------------------------------------------------------
+    def switch_mode(self, servo: Servo, mode: str) -> Steps:
+        """Torque off, the mode, what a mode change resets re-applied, hold (goals set aside)."""
+        link = self._link
+        link.write(servo, 'torque_enable', 0)
+        yield
+        before = link.read(servo, 'present_position')
+        yield
+        link.write(servo, 'operating_mode', servo.model.modes[mode])
+        yield
+        servo.mode = mode
+        servo.goal_raw.clear()
+        after = link.read(servo, 'present_position')
+        yield
+        # A mode change re-initialises Present Position within one turn (the seed).
+        if mode == 'position':
+            servo.turn_offset = 0
+            yield from self._single_turn_homing(servo)
+        else:
+            keep_turns(servo, before, after)
+        # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were reset by
+        # the mode change; give back what the configuration set.
+        for name, value in servo.joint.registers:
+            if name in model.MODE_CHANGE_RESETS:
+                link.write_verified(servo, name, value)
+                yield
+        yield from self.hold(servo)
+
+    def _single_turn_homing(self, servo: Servo) -> Steps:
+        # Position mode ignores a homing offset beyond +-1024 (the seed): one left over from
+        # another mode is put back to the configured one.
+        offset = self._link.read(servo, 'homing_offset')
+        yield
+        if abs(offset) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
+            self._link.write_verified(servo, 'homing_offset',
+                                      servo.joint.register_dict().get('homing_offset', 0))
+            yield
+
+    def resync_mode(self, servo: Servo) -> None:
+        """After a failure, believe the servo about its mode."""
+        try:
+            raw = self._link.read(servo, 'operating_mode')
+            servo.mode = model.MODE_NAMES.get(raw, servo.mode)
+        except (PortError, CommError):
+            pass
+
+
+def keep_turns(servo: Servo, before_raw: int, after_raw: int) -> None:
+    """Keep the joint's position continuous after the servo re-initialised its position."""
+    if servo.mode == 'position':
+        servo.turn_offset = 0
+        return
+    servo.turn_offset += servo.units.kept_turns(before_raw, after_raw)
+
+
+def _cbp_current(servo: Servo) -> int:
+    """
+    Return the goal current (the current limit) a current_based_position joint holds with.
+
+    A mode change or a reboot sets goal_current to the servo's maximum; the joint gets back
+    what it was last commanded, else what the configuration says, else current_limit.
+    """
+    limit = servo.limits.get('current_limit', servo.model.item('current_limit').initial)
+    wanted = servo.goal_raw.get('goal_current',
+                                servo.joint.register_dict().get('goal_current', limit))
+    return max(-limit, min(limit, wanted))
