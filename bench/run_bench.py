@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 from dxl_servo_driver import model  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.models import model_for  # noqa: E402
 from dxl_servo_driver.models.units import units_for  # noqa: E402
+from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402
 
 BAUDS = (1_000_000, 4_000_000)
 COUNTS = (1, 6, 12, 24)
@@ -329,7 +330,7 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
                 latencies += command_latencies(run['published'], seen)
             writes_per_cycle = writes / cycles if cycles else 0.0
         per_cycle_bytes = wire_bytes(variant, n, rate, writes_per_cycle)
-        bus_time_s = per_cycle_bytes * model.BITS_PER_BYTE / baud
+        bus_time_s = per_cycle_bytes * BITS_PER_BYTE / baud
         row: Dict[str, Any] = {
             'n': n, 'baud': baud, 'variant': variant,
             'rate_hz': round(rate, 1),

@@ -34,8 +34,9 @@ from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Un
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
-from dxl_servo_driver.protocol import BROADCAST_ID, crc16, encode_instruction, ErrorCode
-from dxl_servo_driver.protocol import Frame, HEADER, Instruction, scan_frames, unstuff
+from dxl_servo_driver.protocol import (
+    BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, Frame, HEADER,
+    Instruction, MAX_ID, scan_frames, STATUS_OVERHEAD, unstuff)
 import serial
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
@@ -44,8 +45,6 @@ DEADLINE_SLACK_S = 0.002
 READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
 CONFIRM_ATTEMPTS = 3
-BITS_PER_BYTE = 10
-STATUS_OVERHEAD = 11           # header 4, id, length 2, instruction, error, crc 2
 PING_REPLY_PARAMS = 3          # model number (2), firmware version (1)
 # How long the bus stays suspicious after an anomaly: late replies of a frozen adapter arrive
 # within this window of the timeouts they caused.
@@ -61,7 +60,6 @@ ERROR_TEXT: Dict[int, str] = {
 }
 # The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
 BROADCAST_PING_PER_ID_S = 0.003
-MAX_ID = 252
 
 
 class RawPort(Protocol):

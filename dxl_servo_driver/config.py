@@ -15,6 +15,7 @@ from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver.errors import ConfigurationError
+from dxl_servo_driver.protocol import MAX_ID
 import yaml  # type: ignore[import-untyped]
 
 
@@ -258,8 +259,8 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     if key not in params:
         raise ConfigError(key, f'joint {name!r} has no id')
     servo_id = _check_type(key, params[key], int)
-    if not 0 <= servo_id <= 252:
-        raise ConfigError(key, f'id {servo_id} is outside 0..252')
+    if not 0 <= servo_id <= MAX_ID:
+        raise ConfigError(key, f'id {servo_id} is outside 0..{MAX_ID}')
     key = f'{name}.model'
     wanted: Optional[models.Model] = None
     if key in params:

@@ -32,6 +32,7 @@ MODEL_NUMBER = 1030
 FIRMWARE_VERSION = 45
 TABLE_SIZE = 662
 EEPROM_END = 64  # addresses 0..63 are EEPROM, 64.. RAM
+RETURN_DELAY_UNIT_S = 2e-6   # Return Delay Time counts 2 us
 
 INT32_MIN = -(1 << 31)
 INT32_MAX = (1 << 31) - 1

@@ -18,6 +18,7 @@ import threading
 import time
 from typing import Any, Callable, List, Optional, Sequence, Tuple
 
+from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver.bus import Bus, RawPort
 from dxl_servo_driver.config import DriverConfig
@@ -208,7 +209,7 @@ class Manager:
     def bus_budget(self) -> model.BusBudget:
         """Return what one cycle costs on this bus."""
         bus = self._link.bus
-        rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / 2e-6))
+        rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / ct.RETURN_DELAY_UNIT_S))
         return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
                                 rdt_raw, self.config.latency_timer / 1000.0)
 

@@ -11,6 +11,7 @@ from typing import Callable, Mapping, Optional
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.models import Model
+from dxl_servo_driver.protocol import BITS_PER_BYTE, INSTRUCTION_OVERHEAD, STATUS_OVERHEAD
 
 # The kinds of goal, and the register each one writes (SPEC section 2, Topics).
 GOAL_REGISTERS: dict[str, str] = {'position': 'goal_position', 'velocity': 'goal_velocity',
@@ -373,20 +374,17 @@ class TickClock:
 
 
 # Protocol 2.0 framing sizes, for bus timing.
-STATUS_OVERHEAD_BYTES = 11       # header 4, id, length 2, instruction, error, crc 2
-INSTRUCTION_OVERHEAD_BYTES = 10  # header 4, id, length 2, instruction, crc 2
-BITS_PER_BYTE = 10               # 8N1: start + 8 data + stop
 
 
 def sync_read_bytes(n_servos: int, data_length: int) -> int:
     """Return the bytes on the wire of one sync read (instruction + every status packet)."""
-    instruction = INSTRUCTION_OVERHEAD_BYTES + 4 + n_servos
-    return instruction + n_servos * (STATUS_OVERHEAD_BYTES + data_length)
+    instruction = INSTRUCTION_OVERHEAD + 4 + n_servos
+    return instruction + n_servos * (STATUS_OVERHEAD + data_length)
 
 
 def sync_write_bytes(n_servos: int, data_length: int) -> int:
     """Return the bytes on the wire of one sync write."""
-    return INSTRUCTION_OVERHEAD_BYTES + 4 + n_servos * (1 + data_length)
+    return INSTRUCTION_OVERHEAD + 4 + n_servos * (1 + data_length)
 
 
 @dataclass(frozen=True)
@@ -423,5 +421,5 @@ def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
     return BusBudget(
         bytes_per_cycle=total,
         wire_time_s=total * BITS_PER_BYTE / baud_bps,
-        return_delay_s=n_servos * return_delay_time_raw * 2e-6,
+        return_delay_s=n_servos * return_delay_time_raw * ct.RETURN_DELAY_UNIT_S,
         latency_s=latency_timer_s)

@@ -16,6 +16,10 @@ HEADER = b'\xff\xff\xfd\x00'
 BROADCAST_ID = 0xFE
 MAX_ID = 252
 ALERT_BIT = 0x80
+# Sizes on the wire (8N1 serial: a start bit, 8 data bits, a stop bit per byte).
+BITS_PER_BYTE = 10
+STATUS_OVERHEAD = 11        # header 4, id, length 2, instruction, error, crc 2
+INSTRUCTION_OVERHEAD = 10   # header 4, id, length 2, instruction, crc 2
 # Upper bound of the length field this parser accepts (the SDK's own buffers are 1024 bytes);
 # a larger value is taken as line noise and the parser resyncs.
 MAX_PACKET_LENGTH = 4096

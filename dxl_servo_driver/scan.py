@@ -28,6 +28,7 @@ from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus, open_port
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models.names import OTHER_MODELS
+from dxl_servo_driver.protocol import MAX_ID
 
 EXIT_OK = 0
 EXIT_NOT_FOUND = 1
@@ -40,12 +41,11 @@ EXIT_INTERRUPTED = 130
 # last, as its broadcast PING waits longest (the SDK waits for 252 replies' worth of bytes).
 PREFERRED_BAUDS = (57600, 1_000_000)
 UNKNOWN_MODEL = 'unknown model'
-MAX_ID = 252
 # A scan is not time-critical: wait generously for each reply beyond its wire time (the USB
 # adapter's latency timer alone is 16 ms by default on Linux).
 DEFAULT_PROTOCOL_TIMEOUT_MS = 50.0
 # The largest Return Delay Time a servo can have: 254 x 2 us.
-MAX_RETURN_DELAY_S = 254 * 2e-6
+MAX_RETURN_DELAY_S = 254 * ct.RETURN_DELAY_UNIT_S
 READ_ATTEMPTS = 3
 SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
 LINUX_LATENCY_TIMER_MS = 16.0   # what an FTDI adapter's latency timer is unless set

@@ -136,7 +136,7 @@ class Setup:
 
     def _set_return_delay(self) -> None:
         delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]
-        self._link.io().return_delay_s = max(delays, default=250) * 2e-6
+        self._link.io().return_delay_s = max(delays, default=250) * ct.RETURN_DELAY_UNIT_S
 
     # hold and torque ------------------------------------------------------------------------
     def activate(self, servos: List[Servo]) -> None:
