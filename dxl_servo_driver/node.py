@@ -241,7 +241,11 @@ class DriverNode(LifecycleNode):
         return super().on_activate(state)
 
     def _say_what_to_try(self) -> None:
-        """On the simulated bus (make run), three commands a newcomer can paste next."""
+        """On the simulated bus (make run), log three commands a newcomer can paste next."""
+        self.get_logger().info('try next:\n  ' + '\n  '.join(self.what_to_try()))
+
+    def what_to_try(self) -> List[str]:
+        """Return an echo of joint_states and a goal for a position and a velocity joint."""
         ns = self.get_fully_qualified_name()
         by_mode = {servo.mode: servo.name for servo in reversed(self.manager.order)}
         lines = [f'ros2 topic echo {self.resolve_topic_name("joint_states")}']
@@ -251,7 +255,7 @@ class DriverNode(LifecycleNode):
                 lines.append(f'ros2 topic pub {how} {ns}/commands/{mode} '
                              f'dxl_servo_driver_msgs/msg/JointCommand '
                              f'"{{name: [{by_mode[mode]}], value: [{value}]}}"')
-        self.get_logger().info('try next:\n  ' + '\n  '.join(lines))
+        return lines
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Stop the cycle; torque off if torque_off_on_shutdown (ERROR after a cycle failure)."""

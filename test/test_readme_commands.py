@@ -134,3 +134,18 @@ def replay(h: NodeHarness, words: List[str]) -> Tuple[str, Any]:
 @pytest.mark.parametrize('index', range(len(readme_lines())))
 def test_each_readme_line_is_taken(h: NodeHarness, index: int) -> None:
     replay(h, readme_lines()[index])
+
+
+def test_the_lines_make_run_suggests_are_taken(h: NodeHarness) -> None:
+    assert h.node is not None
+    lines = h.node.what_to_try()
+    assert len(lines) == 3
+    assert lines[0] == f'ros2 topic echo {h.namespace}/joint_states'   # what the test reads
+    kinds = []
+    for line in lines[1:]:
+        # The harness runs the node in a namespace of its own; the README's lines have none.
+        words = [word[len(h.namespace):] if word.startswith(f'{h.namespace}/') else word
+                 for word in shlex.split(line)]
+        kinds.append(words[3])
+        assert replay(h, words)[0] == 'topic'
+    assert kinds == ['--once', '-r']
