@@ -2,12 +2,13 @@
 `make bench`: the driver against the stock SDK on a simulated bus paced like the real wire.
 
 For N = 1, 6, 12, 24 servos at 1 and 4 Mbps (Return Delay Time 0), one `virtual_bus --timing
-wire` serves three variants in turn, interleaved round by round so that machine noise hits all
+wire` serves five variants in turn, interleaved round by round so that machine noise hits all
 alike:
 - sdk_baseline: the plain dynamixel_sdk GroupSyncRead + GroupSyncWrite loop (worker process);
 - bus: the driver's bus layer running the node's cycle without ROS (worker process);
 - node: the full node (its installed executable), driven through its lifecycle, joint_states
-  counted by a subscriber here, commands published here and seen on the wire by the simulator.
+  counted by a subscriber here, commands published here and seen on the wire by the simulator;
+- bus_fast, node_fast: the same two with Fast Sync Read (read_mode fast_sync).
 CPU per cycle comes from each process's own accounting (process_time, /proc/PID/stat for the
 node). The bus limit of each variant comes from the bytes it puts on the wire. The simulator's
 own pacing (how late it delivered replies) is reported so that a slow simulator is not taken
@@ -26,7 +27,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Tuple
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 # DDS of its own, before anything loads rclpy: another ROS process on the machine (a test run,
@@ -44,7 +45,8 @@ from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402
 
 BAUDS = (1_000_000, 4_000_000)
 COUNTS = (1, 6, 12, 24)
-VARIANTS = ('sdk_baseline', 'bus', 'node')
+VARIANTS = ('sdk_baseline', 'bus', 'node', 'bus_fast', 'node_fast')
+FAST_VARIANTS = ('bus_fast', 'node_fast')   # read_mode fast_sync: one status for all servos
 ROUNDS = int(os.environ.get('BENCH_ROUNDS', '2'))
 SECONDS = float(os.environ.get('BENCH_SECONDS', '1.5'))
 NAMESPACE = '/bench'
@@ -115,7 +117,7 @@ class VirtualBus:
 
 def run_worker(variant: str, n: int, baud: int, link: str) -> Dict[str, float]:
     """Run the sdk or bus loop in its own process."""
-    name = {'sdk_baseline': 'sdk', 'bus': 'bus'}[variant]
+    name = {'sdk_baseline': 'sdk', 'bus': 'bus', 'bus_fast': 'bus_fast'}[variant]
     out = subprocess.run(
         [sys.executable, str(ROOT / 'bench' / 'workers.py'), name, str(n), str(baud), link,
          str(SECONDS)], capture_output=True, text=True, cwd=ROOT, timeout=60)
@@ -133,7 +135,8 @@ def cpu_seconds(pid: int) -> float:
 class NodeUnderTest:
     """The installed node executable, driven through its lifecycle by a client node here."""
 
-    def __init__(self, n: int, baud: int, link: str, workdir: pathlib.Path) -> None:
+    def __init__(self, n: int, baud: int, link: str, workdir: pathlib.Path,
+                 namespace: str = NAMESPACE, read_mode: str = 'sync') -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from dxl_servo_driver_msgs.msg import JointCommand
@@ -142,8 +145,9 @@ class NodeUnderTest:
         from ament_index_python.packages import get_package_prefix
         self.n = n
         self.joints = [f'j{i}' for i in range(1, n + 1)]
-        params = workdir / f'params_{n}_{baud}.yaml'
+        params = workdir / f'params_{n}_{baud}_{read_mode}.yaml'
         lines = ['/**:', '  ros__parameters:', f'    port: {link}', f'    baud_rate: {baud}',
+                 f'    read_mode: {read_mode}',
                  '    loop_rate: 10000.0', '    latency_timer: 0.0', '    autostart: false',
                  f'    state_rate: {HEALTH_RATE_HZ}', f'    joints: [{", ".join(self.joints)}]']
         # Extra node parameters for experiments, e.g. BENCH_NODE_EXTRA='executor: events'.
@@ -153,13 +157,13 @@ class NodeUnderTest:
             lines += [f'    {joint}:', f'      id: {i}', '      operating_mode: position']
         params.write_text('\n'.join(lines) + '\n')
         exe = pathlib.Path(get_package_prefix('dxl_servo_driver')) / 'lib' / 'dxl_servo_driver'
-        self.log = open(workdir / f'node_{n}_{baud}.log', 'w')
+        self.log = open(workdir / f'node_{n}_{baud}_{read_mode}.log', 'w')
         self.process = subprocess.Popen(
             [str(exe / 'node'), '--ros-args', '--params-file', str(params),
-             '-r', f'__ns:={NAMESPACE}'], stdout=self.log, stderr=subprocess.STDOUT, cwd=ROOT)
+             '-r', f'__ns:={namespace}'], stdout=self.log, stderr=subprocess.STDOUT, cwd=ROOT)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.client = rclpy.create_node('bench_client', context=self.context)
+        self.client = rclpy.create_node(f'bench_client_{read_mode}', context=self.context)
         self.count = 0
         self.counting = False
         from rclpy.serialization import serialize_message
@@ -168,12 +172,12 @@ class NodeUnderTest:
         self.full_size = len(serialize_message(full))
         # raw=True: the counter gets the serialized bytes, saving the deserialisation that
         # would otherwise compete with the node and the simulator for the two cores.
-        self.client.create_subscription(JointState, f'{NAMESPACE}/joint_states',
+        self.client.create_subscription(JointState, f'{namespace}/joint_states',
                                         self._on_state, 100, raw=True)
         self.publisher = self.client.create_publisher(
-            JointCommand, f'{NAMESPACE}/{NODE_NAME}/commands/position', 10)
+            JointCommand, f'{namespace}/{NODE_NAME}/commands/position', 10)
         self.change = self.client.create_client(ChangeState,
-                                                f'{NAMESPACE}/{NODE_NAME}/change_state')
+                                                f'{namespace}/{NODE_NAME}/change_state')
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.client)
         self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -254,8 +258,11 @@ def wire_bytes(variant: str, n: int, rate_hz: float, writes_per_cycle: float) ->
     if variant == 'sdk_baseline':
         return model.sync_read_bytes(n, SDK_READ_BYTES) + model.sync_write_bytes(n, WRITE_BYTES)
     block = model.BLOCK_SHAPE
-    read = model.sync_read_bytes(n, block.motion_size)
-    if variant == 'bus':
+    if variant in FAST_VARIANTS:   # a fast read always carries the tick (the node's cycle)
+        read = model.fast_sync_read_bytes(n, block.tagged_size)
+    else:
+        read = model.sync_read_bytes(n, block.motion_size)
+    if variant in ('bus', 'bus_fast'):
         return read + model.sync_write_bytes(n, WRITE_BYTES)
     # The node reads the whole block HEALTH_RATE_HZ times a second and writes only when a
     # command arrived.
@@ -295,21 +302,23 @@ def run_case_retried(n: int, baud: int, workdir: pathlib.Path,
 def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
     """Measure the three variants on one simulated bus."""
     bus = VirtualBus(n, baud, workdir)
-    node: Optional[NodeUnderTest] = None
+    nodes: Dict[str, NodeUnderTest] = {}
     samples: Dict[str, List[Dict[str, Any]]] = {variant: [] for variant in VARIANTS}
     try:
-        node = NodeUnderTest(n, baud, bus.link, workdir)
+        nodes['node'] = NodeUnderTest(n, baud, bus.link, workdir)
+        nodes['node_fast'] = NodeUnderTest(n, baud, bus.link, workdir, f'{NAMESPACE}_fast',
+                                           'fast_sync')
         for round_index in range(ROUNDS):
-            order = VARIANTS[round_index % 3:] + VARIANTS[:round_index % 3]
-            for variant in order:
-                if variant == 'node':
-                    samples[variant].append(node.measure())
+            shift = round_index % len(VARIANTS)
+            for variant in VARIANTS[shift:] + VARIANTS[:shift]:
+                if variant in nodes:
+                    samples[variant].append(nodes[variant].measure())
                 else:
                     samples[variant].append(run_worker(variant, n, baud, bus.link))
         pacing = bus.pacing()
         seen = bus.goals()
     finally:
-        if node is not None:
+        for node in nodes.values():
             node.close()
         bus.close()
     rows = []
@@ -321,7 +330,7 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
         rate = cycles / wall if wall else 0.0
         writes_per_cycle = 1.0
         latencies: List[float] = []
-        if variant == 'node':
+        if variant in nodes:
             writes = 0
             for run in runs:
                 start, end = run['window']
@@ -345,7 +354,7 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             'sim_late_p50_us': pacing.get('late_p50_us'),
             'sim_late_p99_us': pacing.get('late_p99_us'),
         }
-        if variant == 'node':
+        if variant in nodes:
             row['writes_per_cycle'] = round(writes_per_cycle, 3)
             row['commands_seen'] = len(latencies)
             if latencies:
@@ -375,7 +384,7 @@ def machine() -> Dict[str, Any]:
 def targets(rows: List[Dict[str, Any]]) -> List[str]:
     """Check SPEC section 5's targets at N = 12, 4 Mbps."""
     at = {row['variant']: row for row in rows if row['n'] == 12 and row['baud'] == 4_000_000}
-    if len(at) < 3:
+    if not {'bus', 'node', 'sdk_baseline'} <= set(at):
         return ['N = 12 at 4 Mbps was not measured']
     bus, node, sdk = at['bus'], at['node'], at['sdk_baseline']
     period_ms = 1e3 / node['rate_hz'] if node['rate_hz'] else float('inf')
@@ -396,6 +405,16 @@ def targets(rows: List[Dict[str, Any]]) -> List[str]:
         ('node faster than sdk_baseline', node['rate_hz'] > sdk['rate_hz'],
          f'{node["rate_hz"]} vs {sdk["rate_hz"]} Hz'),
     ]
+    if 'bus_fast' in at and 'node_fast' in at:
+        bus_fast, node_fast = at['bus_fast'], at['node_fast']
+        checks += [
+            ('bus_fast faster than bus', bus_fast['rate_hz'] > bus['rate_hz'],
+             f'{bus_fast["rate_hz"]} vs {bus["rate_hz"]} Hz'),
+            ('node_fast faster than node', node_fast['rate_hz'] > node['rate_hz'],
+             f'{node_fast["rate_hz"]} vs {node["rate_hz"]} Hz'),
+            ('node_fast rate_ratio >= 0.9 (speed issue)', node_fast['rate_ratio'] >= 0.9,
+             node_fast['rate_ratio']),
+        ]
     return [f'{"met " if ok else "MISSED"}  {name}: {value}' for name, ok, value in checks]
 
 

@@ -46,8 +46,9 @@ def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
     return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures}
 
 
-def bus_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, float]:
-    """Run the driver's bus layer as the node's cycle does, without ROS."""
+def bus_loop(n: int, baud: int, port_name: str, seconds: float,
+             fast: bool = False) -> Dict[str, float]:
+    """Run the driver's bus layer as the node's cycle does, without ROS (fast: Fast Sync Read)."""
     sys.path.insert(0, '.')
     from dxl_servo_driver import model
     from dxl_servo_driver.bus import Bus, open_port
@@ -61,9 +62,11 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
     cycles = failures = 0
     wall0 = time.monotonic()
     cpu0 = time.process_time()
-    decode = block.decode_motion
+    # As the node's cycle: a fast read always carries the Realtime Tick, to date it.
+    length = block.tagged_size if fast else block.motion_size
+    decode = block.decode_tagged if fast else block.decode_motion
     while time.monotonic() - wall0 < seconds:
-        results = bus.sync_read(block.read_address, block.motion_size, ids).data
+        results = bus.sync_read(block.read_address, length, ids, fast).data
         for servo_id in ids:
             data = results[servo_id]
             if isinstance(data, bytes):
@@ -81,8 +84,12 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
 def main() -> None:
     """Run one loop and print its figures as JSON."""
     variant, n, baud, port_name, seconds = sys.argv[1:6]
-    loop = {'sdk': sdk_loop, 'bus': bus_loop}[variant]
-    print(json.dumps(loop(int(n), int(baud), port_name, float(seconds))), flush=True)
+    if variant == 'bus_fast':
+        figures = bus_loop(int(n), int(baud), port_name, float(seconds), fast=True)
+    else:
+        loop = {'sdk': sdk_loop, 'bus': bus_loop}[variant]
+        figures = loop(int(n), int(baud), port_name, float(seconds))
+    print(json.dumps(figures), flush=True)
 
 
 if __name__ == '__main__':

@@ -35,8 +35,9 @@ from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Un
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.protocol import (
-    BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, Frame, HEADER,
-    Instruction, MAX_ID, scan_frames, STATUS_OVERHEAD, unstuff)
+    BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, fast_sync_head,
+    fast_sync_size, Frame, HEADER, Instruction, MAX_ID, parse_fast_sync_status, scan_frames,
+    STATUS_OVERHEAD, unstuff)
 import serial
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
@@ -272,6 +273,7 @@ class SyncRead:
     sent_s: float
     deadline_s: float
     done: bool = False
+    fast: bool = False   # a Fast Sync Read: one status packet for all
 
 
 @dataclass
@@ -311,7 +313,7 @@ class Bus:
         self.counters = Counters()
         self.echo = False             # learned: the adapter echoes what we send
         self._dirty_until = 0.0
-        self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...]], bytes] = {}
+        self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...], bool], bytes] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
         self._pending: Optional[SyncRead] = None
         self._read_tag = 0
@@ -574,37 +576,44 @@ class Bus:
         self.transact(servo_id, Instruction.FACTORY_RESET, bytes((option,)), 0, 'factory reset')
 
     # per-cycle transactions ----------------------------------------------------------------
-    def _sync_read_packet(self, address: int, length: int, ids: Tuple[int, ...]) -> bytes:
-        key = (address, length, ids)
+    def _sync_read_packet(self, address: int, length: int, ids: Tuple[int, ...],
+                          fast: bool = False) -> bytes:
+        key = (address, length, ids, fast)
         packet = self._sync_read_packets.get(key)
         if packet is None:
             params = struct.pack('<HH', address, length) + bytes(ids)
-            packet = encode_instruction(BROADCAST_ID, Instruction.SYNC_READ, params)
+            packet = encode_instruction(
+                BROADCAST_ID, Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ,
+                params)
             if len(self._sync_read_packets) > 64:
                 self._sync_read_packets.clear()
             self._sync_read_packets[key] = packet
         return packet
 
-    def sync_read(self, address: int, length: int, ids: Sequence[int]) -> SyncResult:
+    def sync_read(self, address: int, length: int, ids: Sequence[int],
+                  fast: bool = False) -> SyncResult:
         """
-        Read length bytes at address from every servo in ids with one SYNC_READ.
+        Read length bytes at address from every servo in ids with one SYNC_READ (or FAST).
 
         Each id maps to its data or to a CommError; a servo that is silent or corrupted never
-        stops the others from being read.
+        stops the others from being read (in a Fast Sync Read, those whose parts come before a
+        corrupted one, or after a missing one).
         """
-        return self.end_sync_read(self.begin_sync_read(address, length, ids))
+        return self.end_sync_read(self.begin_sync_read(address, length, ids, fast))
 
-    def begin_sync_read(self, address: int, length: int, ids: Sequence[int]) -> SyncRead:
+    def begin_sync_read(self, address: int, length: int, ids: Sequence[int],
+                        fast: bool = False) -> SyncRead:
         """
-        Send a SYNC_READ and return at once; end_sync_read() collects the replies.
+        Send a SYNC_READ (FAST_SYNC_READ when fast) and return at once; end_sync_read() collects.
 
         The caller may do other work (publish the previous cycle) while the servos answer. The
         bus lock is held from here to end_sync_read() or abort(), which must follow in the same
         thread.
         """
         id_tuple = tuple(ids)
-        packet = self._sync_read_packet(address, length, id_tuple)
-        expected = (STATUS_OVERHEAD + length) * len(id_tuple)
+        packet = self._sync_read_packet(address, length, id_tuple, fast)
+        expected = (fast_sync_size(length, len(id_tuple)) if fast
+                    else (STATUS_OVERHEAD + length) * len(id_tuple))
         self.lock.acquire()
         try:
             if self._pending is not None and not self._pending.done:
@@ -614,7 +623,7 @@ class Bus:
             self.lock.release()
             raise
         deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(packet))
-        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline)
+        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline, fast=fast)
         self._pending = pending
         return pending
 
@@ -640,7 +649,7 @@ class Bus:
         ids = pending.ids
         length = pending.length
         reply_size = STATUS_OVERHEAD + length
-        expected = reply_size * len(ids)
+        expected = fast_sync_size(length, len(ids)) if pending.fast else reply_size * len(ids)
         echo_size = len(pending.packet) if self.echo else 0
         buffer = self._read(echo_size + expected, pending.deadline_s)
         if echo_size:
@@ -649,6 +658,8 @@ class Bus:
                 self.counters.echoes += 1
             else:
                 self.echo = False
+        if pending.fast:
+            return self._collect_fast(pending, buffer)
         results = self._parse_sync_fast(buffer, ids, length)
         if results is not None:
             return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
@@ -684,6 +695,73 @@ class Bus:
             results[servo_id] = buffer[start + 9:body_end]
             start += reply_size
         return results
+
+    def _collect_fast(self, pending: SyncRead, buffer: bytes) -> SyncResult:
+        """
+        Take apart the one status packet of a Fast Sync Read.
+
+        The usual case is exactly one whole packet. Otherwise the packet is looked for after
+        whatever came first (a late reply, noise, our own echo) and read on to the deadline
+        while it is short; the last one found is the answer (a stale one comes before it).
+        Parts that check are taken; a missing part (a silent servo) is a timeout, a part that
+        does not check (and every part after it, whose CRCs cover it) a corrupt reply.
+        """
+        ids = pending.ids
+        length = pending.length
+        size = fast_sync_size(length, len(ids))
+        counters = self.counters
+        if len(buffer) == size:
+            parts, whole = parse_fast_sync_status(buffer, 0, ids, length)
+            if whole:
+                return self._fast_result(pending, parts, True, False)
+        data = bytearray(buffer)
+        wanted = fast_sync_head(length, len(ids))
+        while True:
+            final = time.monotonic() >= pending.deadline_s
+            start, parts, whole = _find_fast_status(data, wanted, ids, length)
+            missing = size - (len(data) - start) if start >= 0 else size
+            if whole or final or missing <= 0:
+                break
+            data += self._read(missing, pending.deadline_s)
+        if start > 0:
+            if data.startswith(pending.packet):
+                self.echo = True   # learned: the adapter echoes (stripped from now on)
+                counters.echoes += 1
+            else:
+                counters.stale += 1   # something came before the answer
+        self.mark_dirty()   # a missing part may still come, late
+        truncated = start < 0 or len(data) - start < size
+        return self._fast_result(pending, parts, False, not truncated)
+
+    def _fast_result(self, pending: SyncRead, parts: Dict[int, Tuple[int, bytes]],
+                     clean: bool, complete: bool) -> SyncResult:
+        results: Dict[int, Union[bytes, CommError]] = {}
+        alerts: Dict[int, bool] = {}
+        counters = self.counters
+        for servo_id in pending.ids:
+            part = parts.get(servo_id)
+            if part is None:
+                if complete:
+                    counters.corrupt += 1
+                    results[servo_id] = CorruptReply(
+                        f'id {servo_id}: its part of the fast sync read did not check',
+                        servo_id)
+                else:
+                    counters.timeouts += 1
+                    results[servo_id] = CommTimeout(
+                        f'id {servo_id}: no part in the fast sync read', servo_id)
+                continue
+            error, data = part
+            alerts[servo_id] = bool(error & 0x80)
+            if error & 0x7F:
+                counters.status_errors += 1
+                code = error & 0x7F
+                results[servo_id] = StatusError(
+                    f'id {servo_id}: fast sync read refused: {ERROR_TEXT.get(code, code)}',
+                    servo_id, code, bool(error & 0x80))
+            else:
+                results[servo_id] = data
+        return SyncResult(results, clean, pending.sent_s, alerts)
 
     def _collect_slow(self, pending: SyncRead, buffer: bytearray) -> SyncResult:
         """
@@ -804,6 +882,24 @@ class Bus:
                     raise _port_lost(exc) from None
                 self.counters.tx_packets += 1
         return len(packet)
+
+
+def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...], length: int
+                      ) -> Tuple[int, Dict[int, Tuple[int, bytes]], bool]:
+    """
+    Return where the Fast Sync Read status in data starts, its parts, and whether it is whole.
+
+    The last whole packet wins (a stale one comes first); with none whole, the one with the
+    most parts (the head's bytes could also occur inside data). Start -1: no head at all.
+    """
+    best: Tuple[int, Dict[int, Tuple[int, bytes]], bool] = (-1, {}, False)
+    start = data.find(head)
+    while start >= 0:
+        parts, whole = parse_fast_sync_status(data, start, ids, length)
+        if whole or best[0] < 0 or (not best[2] and len(parts) >= len(best[1])):
+            best = (start, parts, whole)
+        start = data.find(head, start + 1)
+    return best
 
 
 def _status_of(frame: Frame) -> Tuple[int, bytes]:

@@ -47,6 +47,7 @@ class ParamSpec:
 
 BAUDS = tuple(sorted(ct.BAUD_RATES.values()))
 MISSING_SERVO_POLICIES = ('refuse', 'skip')
+READ_MODES = ('sync', 'fast_sync', 'auto')
 
 PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('port', str, '/dev/ttyUSB0',
@@ -80,6 +81,12 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('read_retries', int, 1,
               'A servo whose reply was lost or corrupted is read again on its own this many times '
               'within the cycle, while the cycle has time left.', '', 0, 5),
+    ParamSpec('read_mode', str, 'sync',
+              'How the state is read each cycle: one SYNC_READ (a status packet per servo), one '
+              'FAST_SYNC_READ (one status packet for all; X-series firmware 45+, X330 46+), or '
+              'auto: fast when every servo has it, back to sync (until the next configure) when '
+              'three fast reads in a row bring nothing back while the servos answer their '
+              'one-off retries.', choices=READ_MODES),
     ParamSpec('hardware_error_recovery', bool, False,
               'On a latched hardware error (overload, overheating, ...), reboot that servo alone '
               'and restore its configuration and torque. Off: report it and leave it to you.'),
@@ -149,6 +156,7 @@ class DriverConfig:
     ping_retries: int = 3
     missing_servo: str = 'refuse'
     read_retries: int = 1
+    read_mode: str = 'sync'
     cycle_driver: str = 'thread'
     executor: str = 'events'
     hardware_error_recovery: bool = False

@@ -211,7 +211,13 @@ class Manager:
         bus = self._link.bus
         rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / ct.RETURN_DELAY_UNIT_S))
         return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
-                                rdt_raw, self.config.latency_timer / 1000.0)
+                                rdt_raw, self.config.latency_timer / 1000.0,
+                                fast=self._cycle.fast)
+
+    @property
+    def read_mode_in_use(self) -> str:
+        """Return how the state is read now: 'sync' or 'fast_sync' (read_mode auto decides)."""
+        return 'fast_sync' if self._cycle.fast else 'sync'
 
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""

@@ -11,7 +11,8 @@ from typing import Callable, Mapping, Optional
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.models import Model
-from dxl_servo_driver.protocol import BITS_PER_BYTE, INSTRUCTION_OVERHEAD, STATUS_OVERHEAD
+from dxl_servo_driver.protocol import (
+    BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, STATUS_OVERHEAD)
 
 # The kinds of goal, and the register each one writes (SPEC section 2, Topics).
 GOAL_REGISTERS: dict[str, str] = {'position': 'goal_position', 'velocity': 'goal_velocity',
@@ -382,6 +383,11 @@ def sync_read_bytes(n_servos: int, data_length: int) -> int:
     return instruction + n_servos * (STATUS_OVERHEAD + data_length)
 
 
+def fast_sync_read_bytes(n_servos: int, data_length: int) -> int:
+    """Return the bytes on the wire of one fast sync read (instruction + its one status)."""
+    return INSTRUCTION_OVERHEAD + 4 + n_servos + fast_sync_size(data_length, n_servos)
+
+
 def sync_write_bytes(n_servos: int, data_length: int) -> int:
     """Return the bytes on the wire of one sync write."""
     return INSTRUCTION_OVERHEAD + 4 + n_servos * (1 + data_length)
@@ -409,17 +415,21 @@ class BusBudget:
 
 def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
                latency_timer_s: float = 0.0, read_length: Optional[int] = None,
-               write_length: int = 4) -> BusBudget:
+               write_length: int = 4, fast: bool = False) -> BusBudget:
     """
     Return the cost of one cycle: a sync read of the state block and one sync write of goals.
 
-    Each servo waits its Return Delay Time (2 us per unit) before answering; the USB adapter's
-    latency timer holds the replies once per cycle before the host sees them.
+    Each servo waits its Return Delay Time (2 us per unit) before answering (in a fast sync
+    read only the first: the others follow it on the wire); the USB adapter's latency timer
+    holds the replies once per cycle before the host sees them.
     """
-    length = BLOCK_SHAPE.motion_size if read_length is None else read_length
-    total = sync_read_bytes(n_servos, length) + sync_write_bytes(n_servos, write_length)
+    length = read_length
+    if length is None:   # what the cycle reads: the motion part, with the tick when fast
+        length = BLOCK_SHAPE.tagged_size if fast else BLOCK_SHAPE.motion_size
+    read = (fast_sync_read_bytes if fast else sync_read_bytes)(n_servos, length)
+    total = read + sync_write_bytes(n_servos, write_length)
     return BusBudget(
         bytes_per_cycle=total,
         wire_time_s=total * BITS_PER_BYTE / baud_bps,
-        return_delay_s=n_servos * return_delay_time_raw * ct.RETURN_DELAY_UNIT_S,
+        return_delay_s=(1 if fast else n_servos) * return_delay_time_raw * ct.RETURN_DELAY_UNIT_S,
         latency_s=latency_timer_s)

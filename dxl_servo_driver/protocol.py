@@ -20,6 +20,9 @@ ALERT_BIT = 0x80
 BITS_PER_BYTE = 10
 STATUS_OVERHEAD = 11        # header 4, id, length 2, instruction, error, crc 2
 INSTRUCTION_OVERHEAD = 10   # header 4, id, length 2, instruction, crc 2
+# Fast Sync Read: one status packet for every servo asked (see encode_fast_sync_status).
+FAST_HEAD_SIZE = 8          # header 4, id FE, length 2, instruction 0x55
+FAST_PART_OVERHEAD = 4      # error, id, crc 2 around each servo's data
 # Upper bound of the length field this parser accepts (the SDK's own buffers are 1024 bytes);
 # a larger value is taken as line noise and the parser resyncs.
 MAX_PACKET_LENGTH = 4096
@@ -43,6 +46,7 @@ class Instruction(IntEnum):
     STATUS = 0x55
     SYNC_READ = 0x82
     SYNC_WRITE = 0x83
+    FAST_SYNC_READ = 0x8A
     BULK_READ = 0x92
     BULK_WRITE = 0x93
 
@@ -232,6 +236,74 @@ def scan_frames(buffer: bytes | bytearray, pos: int = 0,
         crc_ok = crc16(raw[:-2]) == (raw[-2] | (raw[-1] << 8))
         frames.append(Frame(start, stop, raw[4], raw[7], crc_ok, raw))
         pos = stop if crc_ok or not resync else start + 1
+
+
+def fast_sync_size(length: int, count: int) -> int:
+    """Return the bytes of a Fast Sync Read status for count servos of length bytes each."""
+    return FAST_HEAD_SIZE + count * (length + FAST_PART_OVERHEAD)
+
+
+def fast_sync_head(length: int, count: int) -> bytes:
+    """Return the first bytes of a Fast Sync Read status for count servos of length bytes."""
+    return HEADER + struct.pack('<BHB', BROADCAST_ID, 1 + count * (length + FAST_PART_OVERHEAD),
+                                Instruction.STATUS)
+
+
+def encode_fast_sync_status(parts: list[tuple[int, int, bytes]], count: int) -> bytes:
+    """
+    Return a Fast Sync Read status packet as it goes on the wire.
+
+    Each (error, id, data) part is followed by the CRC of every byte before it, so the last CRC
+    is the packet's own. The length field counts count servos (all those asked: the first
+    servo sends the header before the others answer), so a part left out makes the packet
+    shorter than its length field says. No byte stuffing: the length is fixed before the data
+    is known (the SDK reads these packets unstuffed too).
+    """
+    packet = bytearray(fast_sync_head(len(parts[0][2]) if parts else 0, count))
+    crc = crc16(packet)
+    for error, servo_id, data in parts:
+        start = len(packet)
+        packet.append(error & 0xFF)
+        packet.append(servo_id & 0xFF)
+        packet += data
+        crc = crc16(packet[start:], crc)
+        packet += struct.pack('<H', crc)
+        crc = crc16(packet[-2:], crc)
+    return bytes(packet)
+
+
+def parse_fast_sync_status(buffer: bytes | bytearray, start: int, ids: tuple[int, ...],
+                           length: int) -> tuple[dict[int, tuple[int, bytes]], bool]:
+    """
+    Take apart a Fast Sync Read status that begins at buffer[start].
+
+    Returns id -> (error byte, data) for every part whose CRC (over all bytes before it) checks
+    and whose id is one asked, after the id of the part before it (parts come in the order
+    asked; a silent servo's part is missing, not empty), and whether the packet was whole: its
+    head as expected, every part there and checked, the last one ending the packet. Parsing
+    stops at the first part that does not check (every later CRC covers it).
+    """
+    parts: dict[int, tuple[int, bytes]] = {}
+    if buffer[start:start + FAST_HEAD_SIZE] != fast_sync_head(length, len(ids)):
+        return parts, False
+    order = {servo_id: index for index, servo_id in enumerate(ids)}
+    part_size = length + FAST_PART_OVERHEAD
+    crc = crc16(buffer[start:start + FAST_HEAD_SIZE])
+    pos = start + FAST_HEAD_SIZE
+    last = -1
+    while pos + part_size <= len(buffer) and len(parts) < len(ids):
+        body_end = pos + part_size - 2
+        crc = crc16(buffer[pos:body_end], crc)
+        if crc != buffer[body_end] | (buffer[body_end + 1] << 8):
+            break
+        index = order.get(buffer[pos + 1], -1)
+        if index <= last:
+            break
+        last = index
+        parts[buffer[pos + 1]] = (buffer[pos], bytes(buffer[pos + 2:body_end]))
+        crc = crc16(buffer[body_end:body_end + 2], crc)
+        pos += part_size
+    return parts, len(parts) == len(ids)
 
 
 def decode_packet(data: bytes) -> Packet:

@@ -179,9 +179,12 @@ PROFILES = {
 }
 
 
-@pytest.mark.parametrize('profile', sorted(PROFILES))
-def test_cycle_survives_a_misbehaving_adapter(profile: str) -> None:
-    with faulty_harness(sim_params(JOINTS), Faults(), seed=7) as h:
+@pytest.mark.parametrize('profile, read_mode', [
+    *((profile, 'sync') for profile in sorted(PROFILES)),
+    # One status packet for all: a late copy of a whole earlier one must be refused too.
+    ('late and duplicated replies', 'fast_sync'), ('everything', 'fast_sync')])
+def test_cycle_survives_a_misbehaving_adapter(profile: str, read_mode: str) -> None:
+    with faulty_harness(sim_params(JOINTS, read_mode=read_mode), Faults(), seed=7) as h:
         assert h.node is not None
         port = h.node.manager.port
         assert h.call('set_velocity', name=['wheel'], value=[WHEEL_RAD_S]).success
@@ -226,8 +229,9 @@ def test_cycle_survives_a_misbehaving_adapter(profile: str) -> None:
         checked, stale = stale_wheel_samples(messages.items, truth, faulted_s, cleared_s, 0)
         assert checked >= 20 and stale == 0, (checked, stale)
         assert wrong_reads == []
-        # The faults did happen.
+        # The faults did happen, to the read asked for.
         assert sum(port.stats.as_dict().values()) > 0, port.stats
+        assert h.node.manager.read_mode_in_use == read_mode
 
 
 def test_cycle_survives_1_khz_without_faults() -> None:

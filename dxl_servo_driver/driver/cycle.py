@@ -1,6 +1,9 @@
 """
 The cycle on the bus: one packed state read of every servo, one sync write per goal register.
 
+The read is a SYNC_READ or, with read_mode fast_sync (or auto, when every servo's firmware has
+it), a FAST_SYNC_READ: one status packet for all servos instead of one each.
+
 The read is dated so a late reply is never published as current, retried per servo within
 the cycle's budget, and watched for servos that restarted on their own (their indirect map is
 gone: the block reads zeros and the canary is 0), which are handed to recovery. A servo that
@@ -29,6 +32,8 @@ READ_BYTES = 14     # a READ instruction packet
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
 # A servo that missed this many sync reads in a row is not retried on its own in a cycle.
 SILENT_AFTER_FAILURES = 3
+# read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
+FAST_EMPTY_LIMIT = 3
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
 
@@ -73,6 +78,11 @@ class Cycle:
         self._reading: Optional[_Reading] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
         self._groups: List[Tuple[model.StateBlock, List[int]]] = []
+        # Fast Sync Read: in use now; given up for good (read_mode auto) after fast reads in a
+        # row that brought nothing back, counted here.
+        self.fast = False
+        self.fast_given_up = False
+        self._fast_empty = 0
 
     def want_full(self) -> None:
         """Read the whole block (health too) next cycle."""
@@ -89,6 +99,11 @@ class Cycle:
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
         self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
+        mode = self.config.read_mode
+        self.fast = bool(self._ids) and (mode == 'fast_sync' or (
+            mode == 'auto' and not self.fast_given_up
+            and all(servo.model.has_fast_sync_read(servo.firmware_version)
+                    for servo, _ in self._ids)))
 
     # the read -----------------------------------------------------------------------------
     def read_states(self, full: Optional[bool] = None,
@@ -128,12 +143,15 @@ class Cycle:
                         or self._need_full)
             if full:
                 length = BLOCK.size   # each group's own block size (_group_length)
-            elif bus.dirty:
+            elif bus.dirty or self.fast:
+                # A fast reply has nothing but its ids to tie it to its request: the tick
+                # always dates it (a late copy arriving in its place is then refused).
                 length = BLOCK.tagged_size
             else:
                 length = BLOCK.motion_size
             block, ids = self._groups[0]
-            pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids)
+            pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
+                                          self.fast)
         except BaseException:
             self._lock.release()
             raise
@@ -172,16 +190,21 @@ class Cycle:
                 # Models whose state block lives elsewhere (an X330 before firmware 53): one
                 # more sync read each layout, dated on their own.
                 more = bus.sync_read(block.read_address, _group_length(block, reading.length),
-                                     ids)
+                                     ids, reading.pending.fast)
                 got = time.monotonic()
                 result.data.update(more.data)
                 result.alerts.update(more.alerts)
                 result.dated.update({sid: (more.sent_s, got) for sid in ids})
                 result.dated.update(more.dated)
                 result.clean = result.clean and more.clean
+            fast_parts = -1
+            if reading.pending.fast:
+                fast_parts = sum(isinstance(data, bytes) for data in result.data.values())
             if (retry_until is not None and self.config.read_retries
                     and not result.clean):
                 self._retry_failed(result, reading.length, retry_until)
+            if fast_parts >= 0:
+                self._judge_fast(fast_parts, result)
             self._need_full = False
             if reading.full:
                 self._last_full_s = reading.stamp
@@ -191,6 +214,28 @@ class Cycle:
             return reading.stamp
         finally:
             self._lock.release()
+
+    def _judge_fast(self, fast_parts: int, result: SyncResult) -> None:
+        """
+        read_mode auto: give Fast Sync Read up when it brings nothing back but servos answer.
+
+        Silence alone proves nothing (servos off, cable out); a fast read with no part taken
+        while the same servos then answered their one-off retries does: firmware or adapter
+        that do not do Fast Sync Read.
+        """
+        if fast_parts:
+            self._fast_empty = 0
+            return
+        if not result.dated:
+            return
+        self._fast_empty += 1
+        if self.config.read_mode == 'auto' and self._fast_empty >= FAST_EMPTY_LIMIT:
+            self.fast = False
+            self.fast_given_up = True
+            self._warn_throttled(
+                'fast', f'read_mode auto: {FAST_EMPTY_LIMIT} fast sync reads in a row brought '
+                'nothing back while the servos answered on their own; sync reads from now on '
+                '(until the next configure)')
 
     def _take_results(self, result: SyncResult, stamp: float, received: float) -> None:
         for servo, servo_id in self._ids:

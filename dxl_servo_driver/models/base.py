@@ -115,6 +115,11 @@ class Model:
             text += f', firmware {self.min_firmware}+'
         return text + ')'
 
+    def has_fast_sync_read(self, firmware: int) -> bool:
+        """Return whether this model at this firmware answers Fast Sync Read (0x8A)."""
+        first = self.fast_sync_read_firmware
+        return first is not None and firmware >= first
+
     def item(self, name: str) -> Item:
         """Return the item with this snake_case name."""
         try:

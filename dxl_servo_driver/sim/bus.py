@@ -4,7 +4,7 @@ The simulated servos on one bus: bytes in, status packets out, plus fault inject
 One StreamParser sees the host's bytes; each whole packet goes to every powered, plugged servo
 listening at the baud the bytes came at.  Replies come back in wire order: for SYNC_READ the
 order of the ids in the packet, for BULK_READ the order of its records, for a broadcast PING
-ascending id.  Fault injection acts per servo object (found by its current id): a dropped status
+ascending id; FAST_SYNC_READ parts are framed into one status packet in the order asked.  Fault injection acts per servo object (found by its current id): a dropped status
 is lost, a corrupted one has one bit flipped after the header so the receiver's CRC check fails
 (CRC-16 catches every single-bit error).
 
@@ -19,7 +19,8 @@ import time
 from typing import Callable, Iterable, Mapping
 
 from dxl_servo_driver.models import Model
-from dxl_servo_driver.protocol import BROADCAST_ID, Instruction, Packet, StreamParser
+from dxl_servo_driver.protocol import (
+    BROADCAST_ID, encode_fast_sync_status, FAST_HEAD_SIZE, Instruction, Packet, StreamParser)
 from dxl_servo_driver.sim.dynamics import ServoDynamics
 from dxl_servo_driver.sim.memory import SEED_MODEL
 from dxl_servo_driver.sim.servo import SimServo
@@ -38,6 +39,7 @@ class Reply:
     data: bytes
     servo_id: int
     return_delay_s: float
+    flip_bit: int = -1   # a Fast Sync Read part: the bit corrupted once framed (-1: none)
 
 
 class _Slot:
@@ -106,6 +108,8 @@ class SimBus:
             replies: list[Reply] = []
             for event in events:
                 order = _reply_order(event.packet) if event.crc_ok else None
+                fast = (order is not None
+                        and event.packet.instruction == Instruction.FAST_SYNC_READ)
                 answered: list[tuple[int, int, Reply]] = []
                 for index, slot in enumerate(self._slots):
                     servo = slot.servo
@@ -115,13 +119,18 @@ class SimBus:
                     status = servo.handle(event, now_s)
                     if status is None:
                         continue
-                    reply = self._inject(slot, status, servo_id)
+                    reply = (self._inject_part(slot, status, servo_id) if fast
+                             else self._inject(slot, status, servo_id))
                     if reply is None:
                         continue
                     rank = order.get(servo_id, _LAST) if order is not None else servo_id
                     answered.append((rank, index, reply))
                 answered.sort(key=lambda entry: (entry[0], entry[1]))
-                replies.extend(entry[2] for entry in answered)
+                if fast and order is not None:
+                    replies.extend(_fast_sync_reply([entry[2] for entry in answered],
+                                                    len(order)))
+                else:
+                    replies.extend(entry[2] for entry in answered)
             return replies
 
     def advance_stalest(self, min_age_s: float) -> bool:
@@ -150,6 +159,17 @@ class SimBus:
             corrupted[position] ^= 1 << rng.randrange(8)
             status = bytes(corrupted)
         return Reply(status, servo_id, slot.servo.return_delay_s)
+
+    def _inject_part(self, slot: _Slot, part: bytes, servo_id: int) -> Reply | None:
+        """Fault injection for one servo's part of a Fast Sync Read (framed afterwards)."""
+        rng = self._random
+        if slot.drop_probability and rng.random() < slot.drop_probability:
+            return None
+        flip = -1
+        if slot.corrupt_probability and rng.random() < slot.corrupt_probability:
+            flip = rng.randrange(len(part) * 8)
+        # The flip is applied once the packet is framed: on the wire, after every CRC.
+        return Reply(part, servo_id, slot.servo.return_delay_s, flip)
 
     # ---- inspection ---------------------------------------------------------------------------
     def servo_ids(self) -> list[int]:
@@ -274,10 +294,30 @@ def _probability(probability: float) -> float:
     return probability
 
 
+def _fast_sync_reply(parts: list[Reply], count: int) -> list[Reply]:
+    """
+    Frame the parts of a Fast Sync Read into the one status packet the servos put on the wire.
+
+    The manual does not say what real servos do when one of those asked is silent; here its
+    part is left out and the rest follow, so the packet is shorter than its length field. The
+    first servo that answers sets the return delay.
+    """
+    if not parts:
+        return []
+    packet = bytearray(encode_fast_sync_status(
+        [(part.data[0], part.data[1], part.data[2:]) for part in parts], count))
+    offset = FAST_HEAD_SIZE
+    for part in parts:
+        if part.flip_bit >= 0:
+            packet[offset + part.flip_bit // 8] ^= 1 << (part.flip_bit % 8)
+        offset += len(part.data) + 2
+    return [Reply(bytes(packet), BROADCAST_ID, parts[0].return_delay_s)]
+
+
 def _reply_order(packet: Packet) -> dict[int, int] | None:
     """Return id -> wire rank for packets answered by several servos, None for id order."""
     params = packet.params
-    if packet.instruction == Instruction.SYNC_READ:
+    if packet.instruction in (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ):
         ids = params[4:]
     elif packet.instruction == Instruction.BULK_READ and packet.servo_id == BROADCAST_ID:
         ids = params[0::5] if len(params) % 5 == 0 else b''

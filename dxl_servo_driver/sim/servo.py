@@ -12,8 +12,8 @@ errors.  Choices where the manual is silent (all documented here):
   error.  A FACTORY_RESET option other than 0x01/0x02/0xFF and CLEAR bytes other than
   01 44 58 4C 22 are a Data Range error.  Malformed SYNC/BULK packets (lengths that do not add up)
   are ignored by every servo: they are broadcast, nobody answers.
-- SYNC_READ/SYNC_WRITE/BULK_READ/BULK_WRITE are acted on only when sent to the broadcast id; sent
-  to one servo's id they get an Instruction error.  A servo listed twice acts on its first entry.
+- SYNC_READ/FAST_SYNC_READ/SYNC_WRITE/BULK_READ/BULK_WRITE are acted on only when sent to the
+  broadcast id; sent to one servo's id they get an Instruction error.  A servo listed twice acts on its first entry.
 - Broadcast: only PING (and the sync/bulk reads, by their id lists) is answered; every other
   instruction is carried out silently.  A broadcast FACTORY_RESET 0xFF is ignored (firmware).
 - Writing torque_enable=1 while a hardware error bit that is set in `shutdown` is latched is
@@ -49,9 +49,10 @@ _U16 = struct.Struct('<H')
 _MODE_RESET_GAINS = ('velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
                      'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain')
 _KIND_PING, _KIND_READ, _KIND_OTHER = 0, 1, 2
-_READ_INSTRUCTIONS = (Instruction.READ, Instruction.SYNC_READ, Instruction.BULK_READ)
-_SYNC_BULK = (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.BULK_READ,
-              Instruction.BULK_WRITE)
+_READ_INSTRUCTIONS = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
+                      Instruction.BULK_READ)
+_SYNC_BULK = (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.FAST_SYNC_READ,
+              Instruction.BULK_READ, Instruction.BULK_WRITE)
 
 
 class Dynamics(Protocol):
@@ -375,6 +376,31 @@ class SimServo:
         address, length = _ADDR_LEN.unpack_from(params)
         return self._read_reply(my_id, address, length)
 
+    def _fast_sync_read(self, my_id: int, broadcast: bool, params: bytes,
+                        now_s: float) -> bytes | None:
+        """
+        Return this servo's part of a Fast Sync Read: error, id, data (SimBus frames the parts).
+
+        Firmware older than the model's first with Fast Sync Read does not know the
+        instruction: a broadcast unknown instruction is not answered. A read the table refuses
+        answers its error code with zeros for data, so the parts after it keep their places.
+        """
+        memory = self.memory
+        if not self.model.has_fast_sync_read(memory.get('firmware_version')):
+            return None
+        if len(params) < 5 or my_id not in params[4:] or memory.raw[68] < 1:
+            return None
+        address, length = _ADDR_LEN.unpack_from(params)
+        try:
+            data = memory.read(address, length)
+            error = 0
+        except TableError as exc:
+            data = bytes(length)
+            error = exc.code
+        if memory.raw[70]:  # hardware_error_status
+            error |= ALERT_BIT
+        return bytes((error, my_id)) + data
+
     def _sync_write(self, my_id: int, broadcast: bool, params: bytes,
                     now_s: float) -> bytes | None:
         if len(params) < 5:
@@ -441,6 +467,7 @@ _HANDLERS: dict[int, Callable[[SimServo, int, bool, bytes, float], 'bytes | None
     Instruction.CLEAR: SimServo._clear,
     Instruction.SYNC_READ: SimServo._sync_read,
     Instruction.SYNC_WRITE: SimServo._sync_write,
+    Instruction.FAST_SYNC_READ: SimServo._fast_sync_read,
     Instruction.BULK_READ: SimServo._bulk_read,
     Instruction.BULK_WRITE: SimServo._bulk_write,
 }
