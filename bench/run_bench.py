@@ -334,9 +334,10 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             writes = 0
             for run in runs:
                 start, end = run['window']
-                writes += len({t for t, servo_id, _ in seen
-                               if servo_id == 1 and start <= t <= end})
-                latencies += command_latencies(run['published'], seen)
+                # Both nodes publish the same goal values: only this run's own goals count.
+                own = [row for row in seen if start <= row[0] <= end + 0.1]
+                writes += len({t for t, servo_id, _ in own if servo_id == 1 and t <= end})
+                latencies += command_latencies(run['published'], own)
             writes_per_cycle = writes / cycles if cycles else 0.0
         per_cycle_bytes = wire_bytes(variant, n, rate, writes_per_cycle)
         bus_time_s = per_cycle_bytes * BITS_PER_BYTE / baud
@@ -364,6 +365,31 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
                 row['command_latency_p50_ms'] = row['command_latency_p99_ms'] = None
         rows.append(row)
     return rows
+
+
+def crc_comparison(n: int = 12, rounds: int = 5, cycles: int = 2000) -> Dict[str, Any]:
+    """
+    Time the CRC checks of one cycle's replies, compiled (fastcrc) against pure Python.
+
+    The N status packets of a sync read of the motion block, as the bus checks them; both
+    implementations in this process, interleaved round by round, the best round of each kept.
+    """
+    from dxl_servo_driver import protocol
+    replies = [protocol.encode_status(servo_id, 0, bytes(model.BLOCK_SHAPE.motion_size))[:-2]
+               for servo_id in range(1, n + 1)]
+    timings: Dict[str, List[float]] = {'compiled': [], 'python': []}
+    functions = {'compiled': protocol.crc16, 'python': protocol.crc16_python}
+    for _ in range(rounds):
+        for name, function in functions.items():
+            start = time.perf_counter()
+            for _ in range(cycles):
+                for reply in replies:
+                    function(reply)
+            timings[name].append((time.perf_counter() - start) / cycles * 1e6)
+    compiled, python = min(timings['compiled']), min(timings['python'])
+    return {'n': n, 'implementation': protocol.CRC_IMPLEMENTATION,
+            'compiled_us_per_cycle': round(compiled, 2), 'python_us_per_cycle': round(python, 2),
+            'ratio': round(compiled / python, 3)}
 
 
 def machine() -> Dict[str, Any]:
@@ -482,13 +508,17 @@ def main() -> int:
             for n in counts:
                 print(f'bench: N={n} at {baud} bps ...', file=sys.stderr, flush=True)
                 rows.extend(run_case_retried(n, baud, workdir, failures))
-    result = {'machine': machine(), 'cases': rows}
+    crc = crc_comparison()
+    result = {'machine': machine(), 'cases': rows, 'crc': crc}
     (out_dir / 'bench.json').write_text(json.dumps(result, indent=1) + '\n')
     plot(rows, out_dir / 'bench.png')
     print(table(rows))
     print()
     for line in targets(rows):
         print(line)
+    print(f'CRC of one cycle\'s replies (N = {crc["n"]}): {crc["implementation"]} '
+          f'{crc["compiled_us_per_cycle"]} us, pure Python {crc["python_us_per_cycle"]} us '
+          f'(ratio {crc["ratio"]})')
     for line in failures:
         print(line)
     print(f'\nwritten: {out_dir / "bench.json"}, {out_dir / "bench.png"}')

@@ -10,7 +10,10 @@ the whole packet as sent (stuffed), header included.
 
 from dataclasses import dataclass
 from enum import IntEnum
+import importlib
+import os
 import struct
+from typing import cast, Protocol
 
 HEADER = b'\xff\xff\xfd\x00'
 BROADCAST_ID = 0xFE
@@ -91,8 +94,8 @@ _CRC_WORD_TABLE = _make_crc_word_table()
 _WORD_STRUCTS: dict[int, struct.Struct] = {}
 
 
-def crc16(data: bytes, crc: int = 0) -> int:
-    """Return the Protocol 2.0 CRC-16 of data, continuing from crc."""
+def crc16_python(data: bytes | bytearray, crc: int = 0, /) -> int:
+    """Return the Protocol 2.0 CRC-16 of data, continuing from crc (pure Python)."""
     words = len(data) >> 1
     if words:
         unpacker = _WORD_STRUCTS.get(words)
@@ -104,6 +107,35 @@ def crc16(data: bytes, crc: int = 0) -> int:
     if len(data) & 1:
         crc = ((crc << 8) & 0xFF00) ^ _CRC_TABLE[(crc >> 8) ^ data[-1]]
     return crc
+
+
+def _compiled_crc16() -> 'Crc16 | None':
+    """
+    Return fastcrc's CRC-16/UMTS (the Protocol 2.0 CRC: poly 0x8005, init 0) when installed.
+
+    It is compiled (Rust) and some 30 times faster per status packet than crc16_python;
+    DXL_PURE_CRC=1 keeps the pure one (the benchmark compares the two).
+    """
+    if os.environ.get('DXL_PURE_CRC') == '1':
+        return None
+    try:
+        umts = cast(Crc16, getattr(importlib.import_module('fastcrc.crc16'), 'umts'))
+    except (ImportError, AttributeError):
+        return None
+    return umts if umts(b'\x01\x02\x03') == crc16_python(b'\x01\x02\x03') else None
+
+
+class Crc16(Protocol):
+    """crc16(data) or crc16(data, crc_so_far), positional."""
+
+    def __call__(self, data: bytes | bytearray, crc: int = 0, /) -> int:
+        """Return the CRC-16 of data, continuing from crc."""
+
+
+_COMPILED_CRC16 = _compiled_crc16()
+CRC_IMPLEMENTATION = 'fastcrc' if _COMPILED_CRC16 is not None else 'python'
+# The hot path calls this name directly: no wrapper between it and the compiled function.
+crc16: Crc16 = _COMPILED_CRC16 if _COMPILED_CRC16 is not None else crc16_python
 
 
 def stuff(payload: bytes) -> bytes:

@@ -1,8 +1,9 @@
 """Protocol 2.0 framing: CRC, stuffing, encoding, and the incremental parser."""
 
 from dxl_servo_driver.protocol import (
-    ALERT_BIT, BROADCAST_ID, crc16, decode_packet, encode_instruction, encode_status, ErrorCode,
-    HEADER, Instruction, Packet, StreamParser, stuff, unstuff)
+    ALERT_BIT, BROADCAST_ID, crc16, crc16_python, CRC_IMPLEMENTATION, decode_packet,
+    encode_instruction, encode_status, ErrorCode, HEADER, Instruction, Packet, StreamParser, stuff,
+    unstuff)
 from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 from hypothesis import given, settings, strategies as st
 import pytest
@@ -64,6 +65,16 @@ def test_crc_matches_sdk(data: bytes) -> None:
 @settings(max_examples=100, deadline=None)
 def test_crc_continues(first: bytes, second: bytes) -> None:
     assert crc16(second, crc16(first)) == crc16(first + second)
+    assert crc16(bytearray(second), crc16(first)) == crc16(first + second)
+
+
+@given(st.binary(max_size=300), st.integers(0, 0xFFFF))
+@settings(max_examples=200, deadline=None)
+def test_the_compiled_crc_is_the_pure_one(data: bytes, start: int) -> None:
+    # The hot path uses fastcrc when installed (requirements/dev.txt installs it).
+    assert CRC_IMPLEMENTATION == 'fastcrc'
+    assert crc16(data, start) == crc16_python(data, start)
+    assert crc16_python(data) == sdk_crc(data)
 
 
 @given(st.binary(max_size=200).map(lambda b: b.replace(b'\xfe', b'\xff\xff\xfd')))
