@@ -5,7 +5,7 @@ ENV := . tools/env.sh &&
 PARAMS ?= config/sim.yaml
 PYTEST_ARGS ?=
 
-.PHONY: setup run test bench clean
+.PHONY: setup run test bench bench-scale clean
 
 setup:
 	@bash tools/setup_env.sh
@@ -18,6 +18,9 @@ test: setup
 
 bench: setup
 	@$(ENV) python bench/run_bench.py
+
+bench-scale: setup
+	@$(ENV) python bench/run_bench.py scale
 
 clean:
 	rm -rf build install log bench-results

@@ -27,7 +27,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 # DDS of its own, before anything loads rclpy: another ROS process on the machine (a test run,
@@ -69,14 +69,15 @@ def percentile(values: List[float], fraction: float) -> float:
 class VirtualBus:
     """A virtual_bus subprocess with wire timing and its control lines."""
 
-    def __init__(self, n: int, baud: int, workdir: pathlib.Path) -> None:
-        self.link = str(workdir / f'ttyBENCH_{n}_{baud}')
-        self.trace = workdir / f'goals_{n}_{baud}.txt'
+    def __init__(self, n: int, baud: int, workdir: pathlib.Path, tag: str = '',
+                 latency_ms: float = 0.0) -> None:
+        self.link = str(workdir / f'ttyBENCH_{n}_{baud}{tag}')
+        self.trace = workdir / f'goals_{n}_{baud}{tag}.txt'
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus',
              '--ids', *[str(i) for i in range(1, n + 1)], '--baud', str(baud),
              '--timing', 'wire', '--return-delay-time', '0', '--link', self.link,
-             '--trace-goals', str(self.trace)],
+             '--latency-ms', str(latency_ms), '--trace-goals', str(self.trace)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         self.device = self.process.stdout.readline().strip()
         if not self.device:
@@ -136,7 +137,8 @@ class NodeUnderTest:
     """The installed node executable, driven through its lifecycle by a client node here."""
 
     def __init__(self, n: int, baud: int, link: str, workdir: pathlib.Path,
-                 namespace: str = NAMESPACE, read_mode: str = 'sync') -> None:
+                 namespace: str = NAMESPACE, read_mode: str = 'sync',
+                 latency_timer_ms: float = 0.0) -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from dxl_servo_driver_msgs.msg import JointCommand
@@ -145,10 +147,11 @@ class NodeUnderTest:
         from ament_index_python.packages import get_package_prefix
         self.n = n
         self.joints = [f'j{i}' for i in range(1, n + 1)]
-        params = workdir / f'params_{n}_{baud}_{read_mode}.yaml'
+        tag = namespace.strip('/')
+        params = workdir / f'params_{n}_{baud}_{tag}.yaml'
         lines = ['/**:', '  ros__parameters:', f'    port: {link}', f'    baud_rate: {baud}',
-                 f'    read_mode: {read_mode}',
-                 '    loop_rate: 10000.0', '    latency_timer: 0.0', '    autostart: false',
+                 f'    read_mode: {read_mode}', f'    latency_timer: {latency_timer_ms}',
+                 '    loop_rate: 10000.0', '    autostart: false',
                  f'    state_rate: {HEALTH_RATE_HZ}', f'    joints: [{", ".join(self.joints)}]']
         # Extra node parameters for experiments, e.g. BENCH_NODE_EXTRA='executor: events'.
         extra = os.environ.get('BENCH_NODE_EXTRA', '').split(';')
@@ -157,13 +160,13 @@ class NodeUnderTest:
             lines += [f'    {joint}:', f'      id: {i}', '      operating_mode: position']
         params.write_text('\n'.join(lines) + '\n')
         exe = pathlib.Path(get_package_prefix('dxl_servo_driver')) / 'lib' / 'dxl_servo_driver'
-        self.log = open(workdir / f'node_{n}_{baud}_{read_mode}.log', 'w')
+        self.log = open(workdir / f'node_{n}_{baud}_{tag}.log', 'w')
         self.process = subprocess.Popen(
             [str(exe / 'node'), '--ros-args', '--params-file', str(params),
              '-r', f'__ns:={namespace}'], stdout=self.log, stderr=subprocess.STDOUT, cwd=ROOT)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.client = rclpy.create_node(f'bench_client_{read_mode}', context=self.context)
+        self.client = rclpy.create_node(f'bench_client_{tag}', context=self.context)
         self.count = 0
         self.counting = False
         from rclpy.serialization import serialize_message
@@ -367,6 +370,92 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
     return rows
 
 
+def node_rate(run: Dict[str, Any]) -> float:
+    """Return a node run's joint_states rate."""
+    return run['cycles'] / run['wall_s'] if run['wall_s'] else 0.0
+
+
+def two_buses(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
+    """
+    Measure two buses at once, one node each (as SPEC runs more buses): alone, then together.
+
+    On two cores the two simulators, two nodes and the counting client share the machine, so
+    'together' against 'alone' is what a second bus costs the first here.
+    """
+    buses = [VirtualBus(n, baud, workdir, tag=f'_{index}') for index in (0, 1)]
+    nodes: List[NodeUnderTest] = []
+    try:
+        for index, bus in enumerate(buses):
+            nodes.append(NodeUnderTest(n, baud, bus.link, workdir, f'{NAMESPACE}_bus{index}'))
+        alone: List[List[float]] = [[], []]
+        together: List[List[float]] = [[], []]
+        for _ in range(ROUNDS):
+            for index, node in enumerate(nodes):
+                alone[index].append(node_rate(node.measure()))
+            runs: List[Dict[str, Any]] = [{}, {}]
+
+            def measure(index: int) -> None:
+                runs[index] = nodes[index].measure()
+            threads = [threading.Thread(target=measure, args=(index,)) for index in (0, 1)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+            for index in (0, 1):
+                together[index].append(node_rate(runs[index]))
+    finally:
+        for node in nodes:
+            node.close()
+        for bus in buses:
+            bus.close()
+    limit = 1.0 / ((model.sync_read_bytes(n, model.BLOCK_SHAPE.motion_size)
+                    + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud)
+    return [{'case': f'two buses, bus {index}', 'n': n, 'baud': baud,
+             'alone_hz': round(statistics.mean(alone[index]), 1),
+             'together_hz': round(statistics.mean(together[index]), 1),
+             'together_over_alone': round(statistics.mean(together[index])
+                                          / statistics.mean(alone[index]), 3),
+             'bus_limit_hz': round(limit, 1)} for index in (0, 1)]
+
+
+def adapter_latency(n: int, baud: int, latency_ms: float,
+                    workdir: pathlib.Path) -> Dict[str, Any]:
+    """
+    Measure a realistic adapter: replies held latency_ms (a USB latency timer) before delivery.
+
+    Each cycle waits that once (the read; the write has no reply), so the best a cycle can do
+    is the bus time plus the latency: the node's rate is given against that.
+    """
+    bus = VirtualBus(n, baud, workdir, tag='_latency', latency_ms=latency_ms)
+    node: Optional[NodeUnderTest] = None
+    try:
+        node = NodeUnderTest(n, baud, bus.link, workdir, f'{NAMESPACE}_latency',
+                             latency_timer_ms=latency_ms)
+        rates = [node_rate(node.measure()) for _ in range(ROUNDS)]
+    finally:
+        if node is not None:
+            node.close()
+        bus.close()
+    bus_s = (model.sync_read_bytes(n, model.BLOCK_SHAPE.motion_size)
+             + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud
+    allowed = 1.0 / (bus_s + latency_ms / 1000.0)
+    rate = statistics.mean(rates)
+    return {'case': f'adapter latency {latency_ms:g} ms', 'n': n, 'baud': baud,
+            'rate_hz': round(rate, 1), 'allowed_hz': round(allowed, 1),
+            'ratio': round(rate / allowed, 3)}
+
+
+def scale(workdir: pathlib.Path, failures: List[str]) -> Dict[str, Any]:
+    """Run the scale cases of the speed issue: N = 50, two buses at once, a 1 ms adapter."""
+    print('bench: scale: N=50 at 4000000 bps ...', file=sys.stderr, flush=True)
+    n50 = run_case_retried(50, 4_000_000, workdir, failures)
+    print('bench: scale: two buses of 12 at 4000000 bps ...', file=sys.stderr, flush=True)
+    both = two_buses(12, 4_000_000, workdir)
+    print('bench: scale: 12 servos behind a 1 ms adapter ...', file=sys.stderr, flush=True)
+    latency = adapter_latency(12, 4_000_000, 1.0, workdir)
+    return {'n50': n50, 'two_buses': both, 'adapter_latency': latency}
+
+
 def crc_comparison(n: int = 12, rounds: int = 5, cycles: int = 2000) -> Dict[str, Any]:
     """
     Time the CRC checks of one cycle's replies, compiled (fastcrc) against pure Python.
@@ -496,6 +585,8 @@ def main() -> int:
     """Run every case, write the JSON and the plot, print the table."""
     out_dir = ROOT / 'bench-results'
     out_dir.mkdir(exist_ok=True)
+    if sys.argv[1:] == ['scale']:
+        return main_scale(out_dir)
     counts = [int(c) for c in os.environ.get('BENCH_COUNTS', ' '.join(map(str, COUNTS))).split()]
     bauds = [int(b) for b in os.environ.get('BENCH_BAUDS', ' '.join(map(str, BAUDS))).split()]
     rows: List[Dict[str, Any]] = []
@@ -522,6 +613,30 @@ def main() -> int:
     for line in failures:
         print(line)
     print(f'\nwritten: {out_dir / "bench.json"}, {out_dir / "bench.png"}')
+    return 0
+
+
+def main_scale(out_dir: pathlib.Path) -> int:
+    """Run `make bench-scale` (N = 50, two buses at once, a 1 ms adapter): bench-scale.json."""
+    failures: List[str] = []
+    print(f'bench: ROS_DOMAIN_ID {os.environ["ROS_DOMAIN_ID"]}, localhost discovery',
+          file=sys.stderr)
+    with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
+        result = scale(pathlib.Path(tmp), failures)
+    result['machine'] = machine()
+    (out_dir / 'bench-scale.json').write_text(json.dumps(result, indent=1) + '\n')
+    print(table(result['n50']))
+    print()
+    for row in result['two_buses']:
+        print(f'{row["case"]}: N={row["n"]} at {row["baud"]} bps: alone {row["alone_hz"]} Hz, '
+              f'together {row["together_hz"]} Hz ({row["together_over_alone"]} of alone; '
+              f'bus limit {row["bus_limit_hz"]} Hz)')
+    latency = result['adapter_latency']
+    print(f'{latency["case"]}: N={latency["n"]} at {latency["baud"]} bps: {latency["rate_hz"]} Hz '
+          f'of the {latency["allowed_hz"]} Hz it allows ({latency["ratio"]})')
+    for line in failures:
+        print(line)
+    print(f'\nwritten: {out_dir / "bench-scale.json"}')
     return 0
 
 

@@ -108,6 +108,15 @@ def test_only_firmware_that_has_it_answers(number: int, firmware: int, answers: 
         assert struct.unpack('<i', parsed[1][1])[0] == sim.read_register(1, 'present_position')
 
 
+def test_sent_to_one_id_it_is_an_instruction_error() -> None:
+    sim = SimBus([1, 2])
+    params = struct.pack('<HH', 132, 4) + bytes((1, 2))
+    packet = protocol.encode_instruction(1, protocol.Instruction.FAST_SYNC_READ, params)
+    replies = sim.feed(packet, sim.servo(1).baud_bps)
+    assert [protocol.decode_packet(reply.data) for reply in replies] == [
+        protocol.Packet(1, protocol.Instruction.STATUS, b'', protocol.ErrorCode.INSTRUCTION)]
+
+
 def test_a_read_the_table_refuses_keeps_its_place_with_its_error() -> None:
     sim = SimBus([1, 2])
     packet = fast_read_packet(4096, 4, (1, 2))   # beyond every table

@@ -136,7 +136,14 @@ def test_each_readme_line_is_taken(h: NodeHarness, index: int) -> None:
     replay(h, readme_lines()[index])
 
 
-def test_the_lines_make_run_suggests_are_taken(h: NodeHarness) -> None:
+def test_the_lines_make_run_suggests_are_taken() -> None:
+    # A node of its own: the README's lines above change modes (set_operating_mode).
+    with NodeHarness(flat_params()) as h:
+        h.joint_states.wait(lambda m: len(m.name) == 4)
+        check_suggestions(h)
+
+
+def check_suggestions(h: NodeHarness) -> None:
     assert h.node is not None
     lines = h.node.what_to_try()
     assert len(lines) == 3

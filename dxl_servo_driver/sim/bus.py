@@ -4,9 +4,10 @@ The simulated servos on one bus: bytes in, status packets out, plus fault inject
 One StreamParser sees the host's bytes; each whole packet goes to every powered, plugged servo
 listening at the baud the bytes came at.  Replies come back in wire order: for SYNC_READ the
 order of the ids in the packet, for BULK_READ the order of its records, for a broadcast PING
-ascending id; FAST_SYNC_READ parts are framed into one status packet in the order asked.  Fault injection acts per servo object (found by its current id): a dropped status
-is lost, a corrupted one has one bit flipped after the header so the receiver's CRC check fails
-(CRC-16 catches every single-bit error).
+ascending id; FAST_SYNC_READ parts are framed into one status packet in the order asked.
+Fault injection acts per servo object (found by its current id): a dropped status is lost, a
+corrupted one has one bit flipped after the header so the receiver's CRC check fails (CRC-16
+catches every single-bit error); in a Fast Sync Read that is the servo's part.
 
 Each servo is of one model (models.Model, the seed's 1030 unless `models` says otherwise): its
 control table, its ping answer and its physics.
@@ -108,8 +109,10 @@ class SimBus:
             replies: list[Reply] = []
             for event in events:
                 order = _reply_order(event.packet) if event.crc_ok else None
+                # Sent to one id, 0x8A gets that servo's ordinary Instruction-error status.
                 fast = (order is not None
-                        and event.packet.instruction == Instruction.FAST_SYNC_READ)
+                        and event.packet.instruction == Instruction.FAST_SYNC_READ
+                        and event.packet.servo_id == BROADCAST_ID)
                 answered: list[tuple[int, int, Reply]] = []
                 for index, slot in enumerate(self._slots):
                     servo = slot.servo
