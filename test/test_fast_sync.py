@@ -305,3 +305,21 @@ def test_forced_fast_sync_keeps_serving_a_servo_that_does_not_answer_it() -> Non
         assert manager.retries >= 7
     finally:
         manager.close()
+
+
+def test_the_simulated_tick_is_current_while_the_physics_lags() -> None:
+    # virtual_bus lets a servo's physics lag a few ms behind a busy bus; its Realtime Tick must
+    # not lag with it, or a driver dating samples by it refuses them as late replies.
+    now = [10.0]
+    sim = SimBus([1], clock=lambda: now[0], boot_time_s=0.0)
+    sim.physics_lag_s = 0.004
+    now[0] += 0.0005   # mid-millisecond: no rounding at the tick's edges
+    tick = model_for(1030).item('realtime_tick')
+    packet = protocol.encode_instruction(1, protocol.Instruction.READ,
+                                         struct.pack('<HH', tick.address, tick.size))
+    ticks = []
+    for _ in range(6):
+        reply = protocol.decode_packet(sim.feed(packet, sim.servo(1).baud_bps)[0].data)
+        ticks.append(struct.unpack('<H', reply.params)[0])
+        now[0] += 0.001
+    assert [value - ticks[0] for value in ticks] == [0, 1, 2, 3, 4, 5]

@@ -138,6 +138,12 @@ class SimServo:
     def advance(self, now_s: float, lag_s: float = 0.0) -> None:
         """Run the physics up to now_s (unless it is less than lag_s behind) and latch errors."""
         dt_s = now_s - self._last_s
+        memory = self.memory
+        if self.powered and dt_s > 0.0:
+            # The Realtime Tick is the servo's clock, not physics: current even while the
+            # physics may lag (a driver dates samples by it).
+            tick_ms = int((now_s - self._power_on_s) * 1000.0)
+            memory.set('realtime_tick', max(tick_ms, 0) % 32768)
         if dt_s < lag_s:
             return
         if dt_s <= 0.0:
@@ -145,14 +151,11 @@ class SimServo:
         if not self.powered:
             self._last_s = now_s
             return
-        memory = self.memory
         # The servo's controllers sample once per control period: packets closer together
         # than that see the registers of the last sample, which also keeps a busy bus cheap.
         if dt_s >= CONTROL_PERIOD_S:
             self._last_s = now_s
             self.latch_errors(self.dynamics.advance(dt_s, memory))
-        tick_ms = int((now_s - self._power_on_s) * 1000.0)
-        memory.set('realtime_tick', max(tick_ms, 0) % 32768)
 
     def latch_errors(self, bits: int) -> None:
         """Latch hardware error bits; drop torque for those set in `shutdown`."""
