@@ -62,17 +62,27 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     cycles = failures = 0
     wall0 = time.monotonic()
     cpu0 = time.process_time()
-    # As the node's cycle: a fast read always carries the Realtime Tick, to date it.
+    # As the node's cycle: a fast read always carries the Realtime Tick, which dates each
+    # sample (a stale one is a failure, and the next read lingers to get back in step).
     length = block.tagged_size if fast else block.motion_size
     decode = block.decode_tagged if fast else block.decode_motion
+    tick = block.index['realtime_tick']
+    clocks = {servo_id: model.TickClock() for servo_id in ids}
+    linger = False
     while time.monotonic() - wall0 < seconds:
-        results = bus.sync_read(block.read_address, length, ids, fast).data
+        result = bus.end_sync_read(bus.begin_sync_read(block.read_address, length, ids, fast,
+                                                       linger))
+        received = time.monotonic()
+        linger = False
         for servo_id in ids:
-            data = results[servo_id]
-            if isinstance(data, bytes):
-                decode(data)
-            else:
+            data = result.data[servo_id]
+            if not isinstance(data, bytes):
                 failures += 1
+                continue
+            values = decode(data)
+            if fast and not clocks[servo_id].check(values[tick], result.sent_s, received):
+                failures += 1
+                linger = True
         bus.sync_write(116, 4, goals)
         cycles += 1
     wall = time.monotonic() - wall0

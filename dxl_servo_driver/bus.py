@@ -274,6 +274,7 @@ class SyncRead:
     deadline_s: float
     done: bool = False
     fast: bool = False   # a Fast Sync Read: one status packet for all
+    linger: bool = False   # read on to the deadline: the last whole answer wins
 
 
 @dataclass
@@ -602,9 +603,13 @@ class Bus:
         return self.end_sync_read(self.begin_sync_read(address, length, ids, fast))
 
     def begin_sync_read(self, address: int, length: int, ids: Sequence[int],
-                        fast: bool = False) -> SyncRead:
+                        fast: bool = False, linger: bool = False) -> SyncRead:
         """
         Send a SYNC_READ (FAST_SYNC_READ when fast) and return at once; end_sync_read() collects.
+
+        With linger the replies are read on to the deadline and the last whole answer is taken:
+        the caller found the last answer stale (a late one taken in its place, the next one
+        then still on its way), and this puts request and answer back in step.
 
         The caller may do other work (publish the previous cycle) while the servos answer. The
         bus lock is held from here to end_sync_read() or abort(), which must follow in the same
@@ -623,7 +628,8 @@ class Bus:
             self.lock.release()
             raise
         deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(packet))
-        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline, fast=fast)
+        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline, fast=fast,
+                           linger=linger)
         self._pending = pending
         return pending
 
@@ -660,7 +666,7 @@ class Bus:
                 self.echo = False
         if pending.fast:
             return self._collect_fast(pending, buffer)
-        results = self._parse_sync_fast(buffer, ids, length)
+        results = None if pending.linger else self._parse_sync_fast(buffer, ids, length)
         if results is not None:
             return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
         return self._collect_slow(pending, bytearray(buffer))
@@ -710,7 +716,7 @@ class Bus:
         length = pending.length
         size = fast_sync_size(length, len(ids))
         counters = self.counters
-        if len(buffer) == size:
+        if len(buffer) == size and not pending.linger:
             parts, whole = parse_fast_sync_status(buffer, 0, ids, length)
             if whole:
                 return self._fast_result(pending, parts, True, False)
@@ -720,9 +726,9 @@ class Bus:
             final = time.monotonic() >= pending.deadline_s
             start, parts, whole = _find_fast_status(data, wanted, ids, length)
             missing = size - (len(data) - start) if start >= 0 else size
-            if whole or final or missing <= 0:
+            if final or (not pending.linger and (whole or missing <= 0)):
                 break
-            data += self._read(missing, pending.deadline_s)
+            data += self._read(missing if missing > 0 else size, pending.deadline_s)
         if start > 0:
             if data.startswith(pending.packet):
                 self.echo = True   # learned: the adapter echoes (stripped from now on)
@@ -817,7 +823,7 @@ class Bus:
                     anomalies += 1
                     counters.stale += 1
                 entries[servo_id] = (index, error, data)
-            if final or (not anomalies and len(entries) == len(ids)):
+            if final or (not anomalies and len(entries) == len(ids) and not pending.linger):
                 break
             missing = len(ids) - len(entries)
             buffer += self._read(max(missing, 1) * reply_size, pending.deadline_s)

@@ -323,3 +323,32 @@ def test_the_simulated_tick_is_current_while_the_physics_lags() -> None:
         ticks.append(struct.unpack('<H', reply.params)[0])
         now[0] += 0.001
     assert [value - ticks[0] for value in ticks] == [0, 1, 2, 3, 4, 5]
+
+
+@pytest.mark.parametrize('fast', [True, False], ids=['fast', 'sync'])
+def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> None:
+    """
+    An answer late past its deadline is taken by the next read; lingering ends that.
+
+    The late answer arrives after the next request flushed the input, in place of the answer
+    still on its way, and the next request would then take that one: a chain of answers one
+    behind. A read that lingers to its deadline takes the last one and leaves nothing behind.
+    """
+    sim = SimBus(IDS)
+    configure_servos(sim, BAUD, 0)
+    port = SimPortHandler(sim, 'sim', BAUD, timing='wire', latency_s=0.0)
+    bus = Bus(port, BAUD, latency_timer_s=0.0, return_delay_s=0.0)
+    for servo_id in IDS:
+        bus.write(servo_id, BLOCK.indirect_map_address(), BLOCK.indirect_map_bytes())
+
+    def behind(linger: bool) -> int:
+        """Put an answer in flight, give it up, read again; return the bytes left behind."""
+        bus.abort(bus.begin_sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast))
+        pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast, linger)
+        result = bus.end_sync_read(pending)
+        assert all(isinstance(result.data[servo_id], bytes) for servo_id in IDS)
+        time.sleep(0.01)   # whatever was still on its way has come
+        return port.in_waiting
+
+    assert behind(linger=False) > 0   # the answer to this request is left for the next
+    assert behind(linger=True) == 0

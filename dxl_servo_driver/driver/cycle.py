@@ -83,6 +83,9 @@ class Cycle:
         self.fast = False
         self.fast_given_up = False
         self._fast_empty = 0
+        # A sample refused as older than its request: the next read lingers to its deadline,
+        # so a late answer taken in the place of one still on its way does not repeat.
+        self._linger_next = False
 
     def want_full(self) -> None:
         """Read the whole block (health too) next cycle."""
@@ -151,7 +154,8 @@ class Cycle:
                 length = BLOCK.motion_size
             block, ids = self._groups[0]
             pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
-                                          self.fast)
+                                          self.fast, self._linger_next)
+            self._linger_next = False
         except BaseException:
             self._lock.release()
             raise
@@ -208,7 +212,9 @@ class Cycle:
             self._need_full = False
             if reading.full:
                 self._last_full_s = reading.stamp
+            refused = self._stale.refused
             self._take_results(result, reading.stamp, received)
+            self._linger_next = self._stale.refused > refused
             self.cycles += 1
             self.last_read_time = reading.stamp
             return reading.stamp
