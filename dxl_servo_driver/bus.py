@@ -743,31 +743,36 @@ class Bus:
                      clean: bool, complete: bool) -> SyncResult:
         results: Dict[int, Union[bytes, CommError]] = {}
         alerts: Dict[int, bool] = {}
-        counters = self.counters
         for servo_id in pending.ids:
             part = parts.get(servo_id)
             if part is None:
-                if complete:
-                    counters.corrupt += 1
-                    results[servo_id] = CorruptReply(
-                        f'id {servo_id}: its part of the fast sync read did not check',
-                        servo_id)
-                else:
-                    counters.timeouts += 1
-                    results[servo_id] = CommTimeout(
-                        f'id {servo_id}: no part in the fast sync read', servo_id)
+                results[servo_id] = self._missing(
+                    servo_id, complete, 'its part of the fast sync read did not check',
+                    'no part in the fast sync read')
                 continue
             error, data = part
             alerts[servo_id] = bool(error & 0x80)
-            if error & 0x7F:
-                counters.status_errors += 1
-                code = error & 0x7F
-                results[servo_id] = StatusError(
-                    f'id {servo_id}: fast sync read refused: {ERROR_TEXT.get(code, code)}',
-                    servo_id, code, bool(error & 0x80))
-            else:
-                results[servo_id] = data
+            results[servo_id] = self._answer(servo_id, error, data, 'fast sync read')
         return SyncResult(results, clean, pending.sent_s, alerts)
+
+    def _missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
+                 silent_text: str) -> CommError:
+        """Count and return why a servo has no reply in a sync read: corrupt or silent."""
+        if corrupt:
+            self.counters.corrupt += 1
+            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
+        self.counters.timeouts += 1
+        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
+
+    def _answer(self, servo_id: int, error: int, data: bytes,
+                what: str) -> Union[bytes, CommError]:
+        """Return a sync-read reply's data, or the StatusError its error byte says (counted)."""
+        code = error & 0x7F
+        if not code:
+            return data
+        self.counters.status_errors += 1
+        return StatusError(f'id {servo_id}: {what} refused: {ERROR_TEXT.get(code, code)}',
+                           servo_id, code, bool(error & 0x80))
 
     def _collect_slow(self, pending: SyncRead, buffer: bytearray) -> SyncResult:
         """
@@ -835,14 +840,10 @@ class Bus:
         for servo_id in ids:
             entry = entries.get(servo_id)
             if entry is None:
-                if corrupt.get(servo_id):
-                    counters.corrupt += 1
-                    results[servo_id] = CorruptReply(
-                        f'id {servo_id}: corrupted status packet in the sync read', servo_id)
-                else:
-                    counters.timeouts += 1
-                    results[servo_id] = CommTimeout(
-                        f'id {servo_id}: no status packet in the sync read', servo_id)
+                results[servo_id] = self._missing(
+                    servo_id, bool(corrupt.get(servo_id)),
+                    'corrupted status packet in the sync read',
+                    'no status packet in the sync read')
                 continue
             frame_index, error, data = entry
             if frame_index < latest:
@@ -853,14 +854,7 @@ class Bus:
                 continue
             latest = frame_index
             alerts[servo_id] = bool(error & 0x80)
-            if error & 0x7F:
-                counters.status_errors += 1
-                code = error & 0x7F
-                results[servo_id] = StatusError(
-                    f'id {servo_id}: sync read refused: {ERROR_TEXT.get(code, code)}',
-                    servo_id, code, bool(error & 0x80))
-            else:
-                results[servo_id] = data
+            results[servo_id] = self._answer(servo_id, error, data, 'sync read')
         return SyncResult(results, False, pending.sent_s, alerts)
 
     def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
