@@ -48,6 +48,7 @@ class ParamSpec:
 BAUDS = tuple(sorted(ct.BAUD_RATES.values()))
 MISSING_SERVO_POLICIES = ('refuse', 'skip')
 READ_MODES = ('sync', 'fast_sync', 'auto')
+WRITE_MODES = ('indirect', 'per_register')
 
 PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('port', str, '/dev/ttyUSB0',
@@ -87,6 +88,12 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'auto: fast when every servo has it, back to sync (until the next configure) when '
               'three fast reads in a row bring nothing back while the servos answer their '
               'one-off retries.', choices=READ_MODES),
+    ParamSpec('write_mode', str, 'indirect',
+              'How goals go out each cycle: indirect = one sync write at the goal slot of each '
+              'servo (indirect entries mapped to the goal registers of its mode), whatever the '
+              'mix of modes; a servo whose firmware does not apply a slot write (checked at '
+              'every hold) or has no room for one (X330 before firmware 53) is written per '
+              'register. per_register = one sync write per goal register.', choices=WRITE_MODES),
     ParamSpec('hardware_error_recovery', bool, False,
               'On a latched hardware error (overload, overheating, ...), reboot that servo alone '
               'and restore its configuration and torque. Off: report it and leave it to you.'),
@@ -157,6 +164,7 @@ class DriverConfig:
     missing_servo: str = 'refuse'
     read_retries: int = 1
     read_mode: str = 'sync'
+    write_mode: str = 'indirect'
     cycle_driver: str = 'thread'
     executor: str = 'events'
     hardware_error_recovery: bool = False

@@ -219,6 +219,13 @@ class Manager:
         """Return how the state is read now: 'sync' or 'fast_sync' (read_mode auto decides)."""
         return 'fast_sync' if self._cycle.fast else 'sync'
 
+    @property
+    def goal_slots_in_use(self) -> str:
+        """Return how many servos take their goals through a goal slot, as 'k of n'."""
+        active = self._roster.active()
+        slotted = sum(servo.goal_slot is not None for servo in active)
+        return f'{slotted} of {len(active)}'
+
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""
         return self._roster.active()

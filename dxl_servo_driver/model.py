@@ -318,6 +318,85 @@ def state_block(model: Model, effort_register: str) -> StateBlock:
     return block
 
 
+# The goal slot: the indirect entries after the state block, mapped to the goal registers of
+# the servo's operating mode, so that one sync write at one address carries every joint's goals
+# whatever their modes (SPEC section 2: one sync write per cycle).
+GOAL_SLOT_SIZE = 6
+# The goal registers of each mode, in slot order: what changes most often first, so that a
+# write of that alone is the shortest.
+SLOT_REGISTERS: dict[str, tuple[str, ...]] = {
+    'position': ('goal_position',),
+    'extended_position': ('goal_position',),
+    'current_based_position': ('goal_position', 'goal_current'),
+    'velocity': ('goal_velocity',),
+    'current': ('goal_current',),
+    'pwm': ('goal_pwm',),
+}
+
+
+class GoalSlot:
+    """
+    One mode's goal registers, laid out in GOAL_SLOT_SIZE indirect data bytes.
+
+    A sync write has one length for every servo in it. A servo whose goals are shorter than the
+    write (a current goal of 2 bytes in a write of 4) repeats its own goal bytes: the entries
+    after its registers map the same registers again, from their first byte, and the data
+    repeats the same values. A write of any length up to GOAL_SLOT_SIZE therefore sets every
+    goal register of the slot whole, and touches nothing else.
+    """
+
+    def __init__(self, model: Model, mode: str, map_address: int, data_address: int) -> None:
+        self.mode = mode
+        self.registers = SLOT_REGISTERS[mode]
+        self.data_address = data_address
+        self.map_address = map_address
+        items = [model.item(name) for name in self.registers]
+        self._structs = tuple(struct.Struct('<' + {1: 'b', 2: 'h', 4: 'i'}[item.size])
+                              for item in items)
+        targets: list[int] = []
+        self.needs: dict[str, int] = {}
+        for item in items:
+            targets.extend(range(item.address, item.address + item.size))
+            self.needs[item.name] = len(targets)   # bytes a write of this goal must carry
+        self.used = len(targets)
+        self.targets = tuple(targets[k % len(targets)] for k in range(GOAL_SLOT_SIZE))
+
+    def map_bytes(self) -> bytes:
+        """Return the data of one WRITE to the slot's indirect address entries."""
+        return b''.join(struct.pack('<H', address) for address in self.targets)
+
+    def holds(self, goals: Mapping[str, int]) -> bool:
+        """Return whether goals has a value for every register of the slot."""
+        return all(name in goals for name in self.registers)
+
+    def pack(self, goals: Mapping[str, int], length: int) -> bytes:
+        """Return length slot bytes holding these goals (KeyError if one is unknown)."""
+        image = b''.join(packer.pack(goals[name])
+                         for packer, name in zip(self._structs, self.registers))
+        return (image * (GOAL_SLOT_SIZE // len(image) + 1))[:length]
+
+
+def goal_slot(model: Model, block: StateBlock, mode: str) -> Optional[GoalSlot]:
+    """
+    Return the goal slot of a servo in a mode, None when its table has no room for one.
+
+    The slot takes the GOAL_SLOT_SIZE indirect entries after the state block; the X330 before
+    firmware 53 (20 entries, all taken by its compact block) has none.
+    """
+    first = block.size
+    entries = model.indirect[first:first + GOAL_SLOT_SIZE]
+    if len(entries) < GOAL_SLOT_SIZE or mode not in SLOT_REGISTERS:
+        return None
+    data = [pair[1] for pair in entries]
+    addresses = [pair[0] for pair in entries]
+    if (data != list(range(data[0], data[0] + GOAL_SLOT_SIZE))
+            or addresses != list(range(addresses[0], addresses[0] + 2 * GOAL_SLOT_SIZE, 2))):
+        return None
+    if any(not model.has(name) for name in SLOT_REGISTERS[mode]):
+        return None
+    return GoalSlot(model, mode, addresses[0], data[0])
+
+
 TICK_PERIOD_MS = 32768   # Realtime Tick counts milliseconds and wraps after 32767
 
 

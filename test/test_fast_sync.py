@@ -350,5 +350,8 @@ def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> No
         time.sleep(0.01)   # whatever was still on its way has come
         return port.in_waiting
 
-    assert behind(linger=False) > 0   # the answer to this request is left for the next
+    # The answer to this request is left for the next. It takes the first answer still on its
+    # way when the second request flushes the input: a descheduled test can miss that, so a
+    # few tries.
+    assert any(behind(linger=False) > 0 for _ in range(5))
     assert behind(linger=True) == 0

@@ -242,23 +242,6 @@ def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
     assert rig.tap.packets[-1].params[2] == SEED_BLOCK.size
 
 
-def test_goals_go_out_in_one_sync_write_per_register(active: Tuple[Rig, Manager]) -> None:
-    rig, manager = active
-    assert manager.command('position', ['arm'], [0.5]).success
-    assert manager.command('velocity', ['wheel'], [1.0]).success
-    assert manager.command('current', ['grip'], [0.2]).success
-    # The latest goal per joint wins.
-    assert manager.command('position', ['arm'], [0.25]).success
-    rig.tap.packets.clear()
-    assert manager.write_pending() == 3
-    sync = [p for p in rig.tap.packets if p.instruction == Instruction.SYNC_WRITE]
-    assert len(sync) == 3 and len(rig.tap.packets) == 3
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.25)
-    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(1.0)
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.2)
-    assert manager.write_pending() == 0     # nothing pending: nothing sent
-
-
 @pytest.mark.parametrize('kind, names, values, reason', [
     ('position', ['elbow'], [0.1], 'unknown joint'),
     ('position', ['arm', 'wheel'], [0.1], 'same length'),

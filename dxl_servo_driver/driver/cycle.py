@@ -34,6 +34,7 @@ _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
 SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
+SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, data)
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
 
@@ -344,26 +345,68 @@ class Cycle:
 
     # the write ----------------------------------------------------------------------------
     def write_pending(self) -> int:
-        """Write the goals queued since the last cycle: one sync write per register."""
+        """
+        Write the goals queued since the last cycle: one sync write.
+
+        Servos with a goal slot (write_mode indirect) are written together at the slot's
+        address, as long as the longest goal that changed needs (a current goal of a
+        current_based_position joint: the whole slot; a position goal: 4 bytes); the others
+        (no slot, or write_mode per_register) get one sync write per goal register.
+        """
         with self._lock:
             bus = self._link.bus
             if not self._goals.waiting() or bus is None:
                 return 0
-            pending = self._goals.take()
-            written = 0
-            for register, goals in pending.items():
-                # One sync write per register: its address and size are every model's alike
-                # on the X series, grouped anyway so that a table that differs is honoured.
-                groups: Dict[Tuple[int, int, bool], List[Tuple[int, bytes]]] = {}
+            by_id = self._roster.by_id
+            with self._goals.lock:
+                pending = self._goals.take_locked()
+                needs: Dict[int, int] = {}   # servo id -> slot bytes its changed goals need
+                loose: Dict[str, Dict[int, int]] = {}   # register -> {servo id: raw}
+                written = 0
+                for register, goals in pending.items():
+                    written += len(goals)
+                    for sid, value in goals.items():
+                        servo = by_id[sid]
+                        slot = servo.goal_slot
+                        need = slot.needs.get(register) if slot is not None else None
+                        if need is None or not slot.holds(servo.goal_raw):  # type: ignore
+                            loose.setdefault(register, {})[sid] = value
+                        else:
+                            needs[sid] = max(need, needs.get(sid, 0))
+                writes = self._slot_writes(needs)
+            for address, length, data in writes:
+                bus.sync_write(address, length, data)
+            for register, goals in loose.items():
+                # Grouped by where the register is: every X-series table has it at the same
+                # address, but a table that differs is honoured.
+                groups: Dict[Tuple[int, int], List[Tuple[int, bytes]]] = {}
                 for sid, value in goals.items():
-                    item = self._roster.by_id[sid].model.item(register)
-                    fmt = _PACKERS[item.size]
-                    groups.setdefault((item.address, item.size, item.signed), []).append(
-                        (sid, fmt.pack(value)))
-                for (address, size, _), data in groups.items():
+                    item = by_id[sid].model.item(register)
+                    groups.setdefault((item.address, item.size), []).append(
+                        (sid, _PACKERS[item.size].pack(value)))
+                for (address, size), data in groups.items():
                     bus.sync_write(address, size, data)
-                written += len(goals)
             return written
+
+    def _slot_writes(self, needs: Dict[int, int]) -> List[SyncWrite]:
+        """
+        Return the sync writes (address, length, data) of the servos whose goals need a slot.
+
+        Packed under the queue's lock, so every slot register goes out at its latest goal.
+        """
+        by_id = self._roster.by_id
+        slotted = [(by_id[sid], need) for sid, need in needs.items()]
+        lengths: Dict[int, int] = {}   # slot address -> the longest need there
+        for servo, need in slotted:
+            address = servo.goal_slot.data_address  # type: ignore[union-attr]
+            lengths[address] = max(need, lengths.get(address, 0))
+        writes: Dict[int, List[Tuple[int, bytes]]] = {address: [] for address in lengths}
+        for servo, _ in slotted:
+            slot = servo.goal_slot
+            assert slot is not None
+            writes[slot.data_address].append(
+                (servo.servo_id, slot.pack(servo.goal_raw, lengths[slot.data_address])))
+        return [(address, lengths[address], data) for address, data in writes.items()]
 
 
 def _group_length(block: model.StateBlock, length: int) -> int:

@@ -119,25 +119,41 @@ class Goals:
                     continue
                 if now - servo.last_command_s > timeout:
                     register = servo.units.kinds[MODE_KIND[servo.mode]].register
-                    if servo.goal_raw.get(register, 0) != 0:
+                    queued = self._pending.get(register, {})
+                    if queued.get(servo.servo_id, servo.goal_raw.get(register, 0)) != 0:
                         self._queue(servo, register, 0)
                         self._warn(f'joint {servo.name!r}: no {servo.mode} command for '
                                    f'{timeout:g} s: goal set to zero')
                     servo.timed_out = True
 
     def _queue(self, servo: Servo, register: str, value: int) -> None:
+        # goal_raw is what was written: it changes when the writer takes the goal (a goal
+        # dropped before, by torque off or a mode switch, never reaches it).
         self._pending.setdefault(register, {})[servo.servo_id] = value
-        servo.goal_raw[register] = value
 
     def waiting(self) -> bool:
         """Return True when goals (or what is left of them) wait to be written."""
         return bool(self._pending)
 
-    def take(self) -> Pending:
-        """Hand the queued goals to whoever writes them; the queue starts empty again."""
-        with self.lock:
-            pending, self._pending = self._pending, {}
+    def take_locked(self) -> Pending:
+        """
+        Hand the queued goals to their writer (who holds the lock); the queue starts empty.
+
+        The servos' goal_raw take the values now: the writer sends them in this cycle.
+        """
+        pending, self._pending = self._pending, {}
+        by_id = self._roster.by_id
+        for register, goals in pending.items():
+            for servo_id, value in goals.items():
+                by_id[servo_id].goal_raw[register] = value
         return pending
+
+    def note_written(self, servo: Servo, register: str, value: int) -> None:
+        """Record a goal register written outside the queue (write_register): slots repeat it."""
+        with self.lock:
+            if register in servo.goal_raw or (servo.goal_slot is not None
+                                              and register in servo.goal_slot.needs):
+                servo.goal_raw[register] = value
 
     def clear(self) -> None:
         """Drop every queued goal."""

@@ -15,6 +15,7 @@ from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.driver.servo import Servo, StaleGuard
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, Interrupted
+from dxl_servo_driver.model import GOAL_SLOT_SIZE, GoalSlot
 
 # A changing register this close to the Realtime Tick is read with it, to date the reply.
 DATED_SPAN_BYTES = 64
@@ -129,12 +130,34 @@ class Link:
         bus = self.io()
         self.attempt(lambda: bus.clear_multi_turn(servo.servo_id))
 
-    def write_indirect_map(self, servo: Servo) -> None:
-        """Write the indirect map that lays the servo's registers out as its state block."""
+    def write_indirect_map(self, servo: Servo, slot: Optional[GoalSlot] = None) -> None:
+        """Write the indirect map of the servo's state block (and goal slot, right after it)."""
         bus = self.io()
         block = servo.block
-        self.attempt(lambda: bus.write(servo.servo_id, block.indirect_map_address(),
-                                       block.indirect_map_bytes()))
+        data = block.indirect_map_bytes()
+        if slot is not None:
+            if slot.map_address != block.indirect_map_address() + len(data):
+                raise ValueError('the goal slot does not follow the state block')
+            data += slot.map_bytes()
+        self.attempt(lambda: bus.write(servo.servo_id, block.indirect_map_address(), data))
+
+    def write_slot_map(self, servo: Servo, slot: GoalSlot) -> None:
+        """Map the goal slot to the goal registers of its mode."""
+        bus = self.io()
+        self.attempt(lambda: bus.write(servo.servo_id, slot.map_address, slot.map_bytes()))
+
+    def slot_mapped(self, servo: Servo, slot: GoalSlot) -> bool:
+        """Return whether the servo's goal slot entries hold the slot's map (read back)."""
+        bus = self.io()
+        expected = slot.map_bytes()
+        return bool(self.attempt(
+            lambda: bus.read(servo.servo_id, slot.map_address, len(expected))) == expected)
+
+    def write_slot(self, servo: Servo, slot: GoalSlot) -> None:
+        """Write the servo's goals (servo.goal_raw) through its whole goal slot."""
+        bus = self.io()
+        data = slot.pack(servo.goal_raw, GOAL_SLOT_SIZE)
+        self.attempt(lambda: bus.write(servo.servo_id, slot.data_address, data))
 
     def read_block(self, servo: Servo) -> Tuple[int, ...]:
         """Read the whole state block once, fresh (a probe: no retry)."""

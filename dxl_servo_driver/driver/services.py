@@ -230,6 +230,8 @@ class Services:
                     return Result(False, str(exc))
                 if item.name in servo.limits:
                     servo.limits[item.name] = value
+                # A goal slot writes its registers whole: it must carry this value from now on.
+                self._goals.note_written(servo, item.name, value)
                 return Result(True, f'{name}.{item.name} (address {item.address}) = {value}')
             return self._request('write', action)
 

@@ -14,7 +14,7 @@ from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver.config import JointConfig
 from dxl_servo_driver.errors import Refused
-from dxl_servo_driver.model import StateBlock, TickClock
+from dxl_servo_driver.model import GoalSlot, StateBlock, TickClock
 from dxl_servo_driver.models.units import Units, units_for
 from dxl_servo_driver.tasks import Steps
 
@@ -68,6 +68,10 @@ class Servo:
     torque_wanted: bool = False
     torque_maybe_on: bool = False   # a torque-on was sent and no torque-off confirmed since
     goal_raw: Dict[str, int] = field(default_factory=dict)   # last goal written, per register
+    # The indirect goal slot mapped for its mode, once a write through it was read back right
+    # (None: goals are written per register).
+    goal_slot: Optional[GoalSlot] = None
+    slot_refused: bool = False      # a write through the slot did not read back: never again
     last_command_s: float = 0.0     # for command_timeout
     timed_out: bool = False
     limits: Dict[str, int] = field(default_factory=dict)

@@ -9,7 +9,7 @@ Present Position are kept in the joint's turn offset. The long activities are st
 (generators, one transaction between two yields) that tasks.py or a synchronous caller runs.
 """
 
-from typing import Callable, Generator, List, Optional
+from typing import Callable, Dict, Generator, List, Optional
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
@@ -127,12 +127,20 @@ class Setup:
             if servo.model.item(name).area == 'ram':
                 link.write_verified(servo, name, value)
                 yield
-        link.write_indirect_map(servo)
+        slot = self._slot_for(servo, servo.mode)
+        link.write_indirect_map(servo, slot)
+        servo.goal_slot = slot   # checked by the first goals written through it (hold)
         yield
         for name in LIMIT_REGISTERS:
             if servo.model.has(name):
                 servo.limits[name] = link.read(servo, name)
                 yield
+
+    def _slot_for(self, servo: Servo, mode: str) -> Optional[model.GoalSlot]:
+        """Return the goal slot the servo's goals go through in a mode (None: per register)."""
+        if self.config.write_mode != 'indirect' or servo.slot_refused:
+            return None
+        return model.goal_slot(servo.model, servo.block, mode)
 
     def _set_return_delay(self) -> None:
         delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]
@@ -168,20 +176,14 @@ class Setup:
             if not torque and servo.torque_wanted:
                 present = yield from self._into_one_turn(servo, present)
             goal = clamp_position(servo, present)
-            link.write(servo, 'goal_position', goal)
-            servo.goal_raw['goal_position'] = goal
-            yield
+            goals = {'goal_position': goal}
             if servo.mode == 'current_based_position':
-                current = _cbp_current(servo)
-                link.write(servo, 'goal_current', current)
-                servo.goal_raw['goal_current'] = current
-                yield
+                goals['goal_current'] = _cbp_current(servo)
+            yield from self._set_goals(servo, goals)
         else:
             register = servo.units.kinds[MODE_KIND[servo.mode]].register
             # A mode change sets goal_current / goal_pwm to their limits: never enable with that.
-            link.write(servo, register, 0)
-            servo.goal_raw[register] = 0
-            yield
+            yield from self._set_goals(servo, {register: 0})
         if servo.torque_wanted and not torque:
             link.write(servo, 'torque_enable', 1)
             yield
@@ -191,14 +193,58 @@ class Setup:
                 keep_turns(servo, present, after)
                 if goal is not None:
                     goal = clamp_position(servo, after)
-                    link.write(servo, 'goal_position', goal)
-                    servo.goal_raw['goal_position'] = goal
-                    yield
+                    yield from self._set_goals(servo, {'goal_position': goal})
+            elif goal is not None:
+                # A servo may take its present position as its goal at torque on (the
+                # simulator does): a goal slot repeats goal_position with other goals, so the
+                # driver's record must be what the servo holds, not what was written before.
+                servo.goal_raw['goal_position'] = link.read(servo, 'goal_position')
+                yield
         elif not servo.torque_wanted and torque:
             link.write(servo, 'torque_enable', 0)
             yield
         servo.last_command_s = self._clock()
         servo.timed_out = False
+
+    def _set_goals(self, servo: Servo, goals: Dict[str, int]) -> Steps:
+        """
+        Write goals at once: through the goal slot, read back, or register by register.
+
+        Every hold is where the driver checks that the servo applies goals written through its
+        slot: the slot's indirect entries are read back, and each goal register from its own
+        address after the write. Any difference gives the slot up for that servo (a warning;
+        its goals go register by register from then on). A goal equal to what the register
+        held already cannot show a slot that does not work; the next hold checks again.
+        """
+        link = self._link
+        servo.goal_raw.update(goals)
+        slot = servo.goal_slot
+        if slot is not None:
+            wrong = []
+            if not link.slot_mapped(servo, slot):
+                wrong.append('its indirect entries do not read back as mapped')
+            else:
+                yield
+                try:
+                    link.write_slot(servo, slot)
+                except StatusError as exc:
+                    wrong.append(str(exc))
+                yield
+            for name in slot.registers if not wrong else ():
+                back = link.read(servo, name)
+                yield
+                if back != servo.goal_raw[name]:
+                    wrong.append(f'{name} reads {back} after {servo.goal_raw[name]} was written')
+            if not wrong:
+                return
+            servo.goal_slot = None
+            servo.slot_refused = True
+            self._warn(f'joint {servo.name!r}: goals written through its indirect goal slot did '
+                       f'not arrive ({"; ".join(wrong)}); its goals are written register by '
+                       'register from now on')
+        for name, value in goals.items():
+            link.write(servo, name, value)
+            yield
 
     def _into_one_turn(self, servo: Servo, present: int) -> Generator[None, None, int]:
         """Bring Present Position within one turn before torque on; return its new value."""
@@ -229,6 +275,11 @@ class Setup:
         yield
         servo.mode = mode
         servo.goal_raw.clear()
+        slot = self._slot_for(servo, mode)
+        if slot is not None:
+            link.write_slot_map(servo, slot)
+            yield
+        servo.goal_slot = slot
         after = link.read(servo, 'present_position')
         yield
         # A mode change re-initialises Present Position within one turn (the seed).

@@ -84,6 +84,7 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         'loop_rate_measured_hz': f'{measured:.1f}',
         'bus_limit_hz': f'{budget.rate_limit_hz:.0f}',
         'read_mode': manager.read_mode_in_use,
+        'goal_slots': manager.goal_slots_in_use,
         'cycles': manager.cycles, 'cycle_errors': facts.cycle_errors,
         'read_failures': manager.read_failures,
         'timeouts': counters.timeouts if counters else 0,
