@@ -92,7 +92,9 @@ STATIC_REGISTERS = ('model_number', 'firmware_version', 'led', 'position_p_gain'
 DRIVER_OWNED = {'id', 'baud_rate', 'operating_mode', 'torque_enable', 'goal_position',
                 'goal_velocity', 'indirect_address_1', 'indirect_data_1'}
 # Not the start of any item: inside model_number, reserved, inside goal_position, past the table.
-BAD_ADDRESSES = (1, 12, 117, 700, 65536, 2 ** 40)
+# (12 is not in the seed's table but is Secondary ID on the simulated XM430-W350, as the SDK's
+# table and e-manual have it: models.SEED_DIFFERENCES.)
+BAD_ADDRESSES = (1, 15, 117, 700, 65536, 2 ** 40)
 # A lower limit would make goals clamp to nothing and the marker command below undetectable.
 LIMIT_FLOOR = {'pwm_limit': 50, 'current_limit': 50, 'velocity_limit': 50}
 
