@@ -24,7 +24,7 @@ from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.cycle import CycleRunner
 from dxl_servo_driver.ros.diagnostics import diagnostics
 from dxl_servo_driver.ros.interfaces import COMMAND_KINDS, Interfaces
-from dxl_servo_driver.ros.messages import JointTable, servo_states
+from dxl_servo_driver.ros.messages import JointTable, servo_states, time_msg
 from dxl_servo_driver_msgs.msg import ServoStateArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -213,6 +213,10 @@ class DriverNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         # The servos said which model they are: their conversions are known now.
         self._joints = JointTable(self.manager.order)
+        problem = self._joints.check_wire()
+        if problem:
+            self.get_logger().warning(f'{problem}: joint_states go out as message objects '
+                                      '(slower)')
         if self.joint_states_pub is None:
             self.joint_states_pub = self.create_lifecycle_publisher(
                 JointState, 'joint_states', 10)
@@ -478,19 +482,20 @@ class DriverNode(LifecycleNode):
             self.get_logger().info(f'trajectory done (final error {outcome.worst_rad:.4f} rad)')
 
     # publishing -----------------------------------------------------------------------------
-    def _publish(self, stamp: Any, read_ok: bool) -> None:
+    def _publish(self, stamp_ns: int, read_ok: bool) -> None:
         if read_ok and self._grasps:
             self._update_grasps(time.monotonic())
         if read_ok and self.joint_states_pub is not None:
-            msg = self._joints.fill(stamp)
+            msg = self._joints.message(stamp_ns)
             if msg is not None:
                 self.joint_states_pub.publish(msg)
         now = time.monotonic()
         if self._state_period_s and now - self._last_state_s >= self._state_period_s:
             self._last_state_s = now
             if self.servo_states_pub is not None:
-                self.servo_states_pub.publish(servo_states(self.manager.order, stamp, {
-                    name: detector.grasping for name, detector in self._grasps.items()}))
+                grasping = {name: detector.grasping for name, detector in self._grasps.items()}
+                self.servo_states_pub.publish(
+                    servo_states(self.manager.order, time_msg(stamp_ns), grasping))
 
     def _publish_diagnostics(self) -> None:
         try:

@@ -55,7 +55,7 @@ class CycleRunner:
         self.period_s = 1.0 / loop_rate_hz
         self._period_changed = False
         self.bus_cycle_s = 0.0
-        self._read_stamp: Any = None
+        self._read_stamp = 0   # ROS time of the read in flight, ns
         self._read_began_s = 0.0
         self._next_rate_log_s = 0.0
         self.last_cycle_s = 0.0
@@ -172,7 +172,8 @@ class CycleRunner:
 
     def _begin(self) -> bool:
         """Stamp and start a read; False when nothing is in flight (port lost, no servo)."""
-        self._read_stamp = self._host.get_clock().now().to_msg()
+        # In nanoseconds: the joint_states bytes take it as it is (messages.JointTable).
+        self._read_stamp = self._host.get_clock().now().nanoseconds
         self._read_began_s = time.monotonic()
         return self._host.manager.cycle_begin()
 

@@ -6,15 +6,72 @@ units through the servo's own model (models.units).
 """
 
 import math
-from typing import Any, List, Mapping, Optional, Sequence, Tuple
+import struct
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
+from builtin_interfaces.msg import Time
 from dxl_servo_driver.manager import (
     IDX_EFFORT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
     IDX_TEMPERATURE, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Servo)
 from dxl_servo_driver_msgs.msg import ServoState, ServoStateArray
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 assert (IDX_POSITION, IDX_VELOCITY, IDX_EFFORT) == (0, 1, 2)   # JointTable reads them so
+
+
+class _Wire:
+    """
+    One joint_states layout in CDR (the bytes rmw puts on the wire), with the names in place.
+
+    Converting a JointState from Python to C and serializing it costs about three times what
+    publishing ready bytes does; the names, counts and paddings never change for one set of
+    joints, so they are laid out once and each cycle only packs the stamp and three arrays.
+    """
+
+    def __init__(self, names: Sequence[str], frame_id: str = '') -> None:
+        body = bytearray()
+
+        def align(size: int) -> None:
+            body.extend(bytes(-len(body) % size))
+
+        def string(text: str) -> None:
+            raw = text.encode()
+            align(4)
+            body.extend(struct.pack('<I', len(raw) + 1) + raw + b'\0')
+
+        body.extend(bytes(8))   # header.stamp: sec, nanosec
+        string(frame_id)
+        align(4)
+        body.extend(struct.pack('<I', len(names)))
+        for name in names:
+            string(name)
+        self.offsets = []
+        for _ in range(3):   # position, velocity, effort
+            align(4)
+            body.extend(struct.pack('<I', len(names)))
+            align(8)
+            self.offsets.append(len(_CDR_LE) + len(body))
+            body.extend(bytes(8 * len(names)))
+        self.buffer = bytearray(_CDR_LE + body)
+        self.doubles = struct.Struct(f'<{len(names)}d')
+
+    def pack(self, stamp_ns: int, positions: Sequence[float], velocities: Sequence[float],
+             efforts: Sequence[float]) -> bytes:
+        """Return the serialized message."""
+        buffer = self.buffer
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        _STAMP.pack_into(buffer, len(_CDR_LE), sec, nanosec)
+        pack_into = self.doubles.pack_into
+        pack_into(buffer, self.offsets[0], *positions)
+        pack_into(buffer, self.offsets[1], *velocities)
+        pack_into(buffer, self.offsets[2], *efforts)
+        return bytes(buffer)
+
+
+_CDR_LE = b'\x00\x01\x00\x00'   # encapsulation: plain CDR, little-endian
+_STAMP = struct.Struct('<iI')
+_WIRE_LAYOUTS = 16   # sets of fresh joints kept laid out (all fresh is the usual one)
 
 
 class JointTable:
@@ -29,9 +86,12 @@ class JointTable:
             (servo, servo.name, servo.units.zero_raw, servo.units.rad_per_pulse,
              servo.units.rad_s_per_velocity_raw, servo.units.effort_nm_per_raw)
             for servo in servos]
+        self._wires: Dict[Tuple[str, ...], _Wire] = {}
+        # None until checked against the rmw's own deserialisation (check_wire).
+        self.serialize: Optional[bool] = None
+        self._all = tuple(self.names)
 
-    def fill(self, stamp: Any) -> Any:
-        """Return the JointState of the fresh servos (reused message), None if none is."""
+    def _values(self) -> Tuple[List[str], List[float], List[float], List[float]]:
         names = []
         positions = []
         velocities = []
@@ -44,6 +104,11 @@ class JointTable:
             positions.append((state[0] + servo.turn_offset - zero) * rad_per_pulse)
             velocities.append(state[1] * rad_s)
             efforts.append(state[2] * nm_per_raw)
+        return names, positions, velocities, efforts
+
+    def fill(self, stamp: Any) -> Any:
+        """Return the JointState of the fresh servos (reused message), None if none is."""
+        names, positions, velocities, efforts = self._values()
         if not names:
             return None   # nobody answered: nothing to say (and never a stale value)
         if len(names) == len(self.names):
@@ -55,6 +120,56 @@ class JointTable:
         msg.velocity = velocities
         msg.effort = efforts
         return msg
+
+    def message(self, stamp_ns: int) -> Any:
+        """
+        Return what to publish for the fresh servos: CDR bytes, or a JointState; None if none.
+
+        The bytes once check_wire() found the rmw reads them as the message they mean; the
+        message object otherwise.
+        """
+        if not self.serialize:
+            return self.fill(time_msg(stamp_ns))
+        names, positions, velocities, efforts = self._values()
+        if not names:
+            return None
+        key = self._all if len(names) == len(self._all) else tuple(names)
+        wire = self._wires.get(key)
+        if wire is None:
+            if len(self._wires) >= _WIRE_LAYOUTS:
+                self._wires.clear()
+            wire = self._wires[key] = _Wire(key)
+        return wire.pack(stamp_ns, positions, velocities, efforts)
+
+    def check_wire(self) -> str:
+        """
+        Check the CDR bytes against the rmw's deserialisation; return '' or what differs.
+
+        Serialisation is the rmw's business: a middleware that lays JointState out otherwise
+        gets the message object instead (what differs is said once, by the node).
+        """
+        names = self.names or ['check']
+        count = len(names)
+        values = [[float(k) + 0.25 * column for k in range(count)] for column in range(3)]
+        stamp_ns = 1_234_567_890_123_456_789
+        try:
+            msg = deserialize_message(_Wire(names).pack(stamp_ns, *values), JointState)
+            problem = ''
+            if (list(msg.name) != list(names) or list(msg.position) != values[0]
+                    or list(msg.velocity) != values[1] or list(msg.effort) != values[2]
+                    or (msg.header.stamp.sec, msg.header.stamp.nanosec)
+                    != divmod(stamp_ns, 1_000_000_000) or msg.header.frame_id != ''):
+                problem = 'the middleware reads joint_states bytes laid out here differently'
+        except Exception as exc:  # noqa: B902 - any failure means: do not use the bytes
+            problem = f'the middleware does not take joint_states bytes laid out here ({exc})'
+        self.serialize = not problem
+        return problem
+
+
+def time_msg(stamp_ns: int) -> Time:
+    """Return a builtin_interfaces/Time of a ROS time in nanoseconds."""
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def servo_state(servo: Servo, grasping: bool = False) -> ServoState:
