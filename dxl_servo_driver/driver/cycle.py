@@ -34,6 +34,7 @@ _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
 SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
+_MOTION = BLOCK.motion_struct   # the motion part is laid out alike on every model
 SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, data)
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
@@ -245,8 +246,23 @@ class Cycle:
                 '(until the next configure)')
 
     def _take_results(self, result: SyncResult, stamp: float, received: float) -> None:
+        get = result.data.get
+        alerts = result.alerts
+        motion_size = BLOCK.motion_size
+        unpack_motion = _MOTION.unpack
         for servo, servo_id in self._ids:
-            data = result.data.get(servo_id)
+            data = get(servo_id)
+            state = servo.state
+            if isinstance(data, bytes) and len(data) == motion_size and state is not None:
+                # The usual cycle: the motion part of a servo known to be well.
+                values = unpack_motion(data)
+                if values[0] or values[1] or values[2]:   # all zeros: see below
+                    servo.state = values + state[BLOCK.MOTION_FIELDS:]
+                    if alerts.get(servo_id) and not state[IDX_HW_ERROR]:
+                        self._need_full = True   # a new hardware error: decode it next cycle
+                    servo.fresh = True
+                    servo.consecutive_failures = 0
+                    continue
             if not isinstance(data, bytes):
                 self._read_failed(servo, data)
                 continue
