@@ -6,9 +6,11 @@ does (each data byte written to the address its entry names); the driver's write
 on the simulator, by the packets it sent and the registers the servos hold.
 """
 
+import io
+import struct
 from typing import Any, Dict, List, Tuple
 
-from dxl_servo_driver import model
+from dxl_servo_driver import model, protocol
 from dxl_servo_driver.config import validate
 from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.models import ALL_MODELS, model_for
@@ -16,7 +18,7 @@ from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
-from dxl_servo_driver.sim.virtual_bus import configure_servos
+from dxl_servo_driver.sim.virtual_bus import configure_servos, GoalTracer
 import pytest
 from test_manager import BAUD, no_tasks, params, Rig, run_cycles, TapPort
 
@@ -237,3 +239,29 @@ def test_an_old_x330_without_room_is_written_per_register_beside_the_slot() -> N
     assert sorted(_address_length(p) for p in rig.tap.packets) == [(116, 4), (SLOT_ADDRESS, 4)]
     assert rig.reg(1, 'goal_position') == arm.position_from_rad(0.3)
     assert rig.reg(2, 'goal_position') == finger.position_from_rad(-0.3)
+
+
+def test_the_benchmark_goal_tracer_follows_writes_through_the_slot() -> None:
+    # virtual_bus --trace-goals times every goal position the host writes (the benchmark's
+    # command latency): through the slot as well as at Goal Position itself.
+    sim = SimBus((1, 2), boot_time_s=0.0)
+    configure_servos(sim, BAUD, None)
+    out = io.StringIO()
+    tracer = GoalTracer(out, sim)
+    table = model_for(1020)
+    block = model.state_block(table, 'present_current')
+    slot = model.goal_slot(table, block, 'position')
+    current = model.goal_slot(table, block, 'current')
+    assert slot is not None and current is not None
+    for servo_id, mapped in ((1, slot), (2, current)):
+        sim.feed(protocol.encode_instruction(servo_id, Instruction.WRITE, struct.pack(
+            '<H', mapped.map_address) + mapped.map_bytes()), BAUD)
+    goals = {1: {'goal_position': 3000}, 2: {'goal_current': 40}}
+    params = struct.pack('<HH', SLOT_ADDRESS, 4) + b''.join(
+        bytes((sid,)) + (slot if sid == 1 else current).pack(goals[sid], 4) for sid in (1, 2))
+    tracer.feed(protocol.encode_instruction(0xFE, Instruction.SYNC_WRITE, params), 5.0)
+    direct = struct.pack('<HH', 116, 4) + bytes((2,)) + struct.pack('<i', 1234)
+    tracer.feed(protocol.encode_instruction(0xFE, Instruction.SYNC_WRITE, direct), 6.0)
+    lines = [line.split() for line in out.getvalue().splitlines()]
+    # The current-mode servo's slot write holds no goal position: not logged.
+    assert lines == [['5.000000', '1', '3000'], ['6.000000', '2', '1234']]

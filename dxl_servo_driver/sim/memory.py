@@ -210,6 +210,13 @@ class Memory:
             self.set(goal, self.get(limit))
 
     # ---- bus access ---------------------------------------------------------------------------
+    def target(self, address: int) -> int:
+        """Return the address a bus access at address reaches (through its indirect entry)."""
+        entry = self.table.indirect.get(address)
+        if entry is None:
+            return address
+        return _U16.unpack_from(self._data, entry)[0] % self.table.size
+
     def read(self, address: int, length: int) -> bytes:
         """Return length bytes from address, through indirect data; reserved bytes read 0."""
         if length < 1:

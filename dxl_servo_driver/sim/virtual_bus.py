@@ -157,13 +157,16 @@ class GoalTracer:
 
     One line per goal: `<time.monotonic()> <id> <raw goal>`. CLOCK_MONOTONIC is shared by every
     process of the machine, so the benchmark compares these times with its own publication times
-    to measure command latency.
+    to measure command latency. A write through indirect entries (the driver's goal slot) is
+    followed to the registers it reaches, as the servo's map stands when the write arrives.
     """
 
-    def __init__(self, out: TextIO) -> None:
+    def __init__(self, out: TextIO, bus: SimBus) -> None:
         self._out = out
+        self._bus = bus
         self._parser = protocol.StreamParser()
-        self._address = control_table.BY_NAME['goal_position'].address
+        goal = control_table.BY_NAME['goal_position']
+        self._goal = list(range(goal.address, goal.address + goal.size))
 
     def feed(self, data: bytes, now_s: float) -> None:
         """Look at bytes from the host; log the goals found in whole packets."""
@@ -173,17 +176,27 @@ class GoalTracer:
                 continue
             params = packet.params
             address = params[0] | (params[1] << 8)
-            if packet.instruction == protocol.Instruction.WRITE and address == self._address:
-                if len(params) == 6:
-                    self._log(now_s, packet.servo_id, params[2:6])
-            elif packet.instruction == protocol.Instruction.SYNC_WRITE \
-                    and address == self._address:
+            if packet.instruction == protocol.Instruction.WRITE:
+                self._goal_in(now_s, packet.servo_id, address, params[2:])
+            elif packet.instruction == protocol.Instruction.SYNC_WRITE:
                 length = params[2] | (params[3] << 8)
-                if length != 4:
-                    continue
-                for start in range(4, len(params) - 4, 5):
-                    self._log(now_s, params[start], params[start + 1:start + 5])
+                for start in range(4, len(params) - length, length + 1):
+                    self._goal_in(now_s, params[start], address,
+                                  params[start + 1:start + 1 + length])
         self._out.flush()
+
+    def _goal_in(self, now_s: float, servo_id: int, address: int, chunk: bytes) -> None:
+        """Log the goal position in one servo's written bytes, if they hold it whole."""
+        try:
+            memory = self._bus.servo(servo_id).memory
+        except ValueError:
+            return   # not a servo of this bus (broadcast, or an id nobody has)
+        targets = [memory.target(address + k) for k in range(len(chunk))]
+        goal = self._goal
+        for offset in range(len(chunk) - len(goal) + 1):
+            if targets[offset:offset + len(goal)] == goal:
+                self._log(now_s, servo_id, chunk[offset:offset + len(goal)])
+                return
 
     def _log(self, now_s: float, servo_id: int, raw: bytes) -> None:
         value = int.from_bytes(raw, 'little', signed=True)
@@ -534,7 +547,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 trace_file.close()
             return 1
     if 'goals' in trace_files:
-        server.goal_tracer = GoalTracer(trace_files['goals'])
+        server.goal_tracer = GoalTracer(trace_files['goals'], server.bus)
     if 'state' in trace_files:
         server.state_tracer = StateTracer(trace_files['state'], bus)
 
