@@ -48,6 +48,7 @@ from dxl_servo_driver.models import Model, model_for, model_named, ModelError
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
+from dxl_servo_driver.sim.memory import Memory
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler
 
@@ -166,7 +167,11 @@ class GoalTracer:
         self._bus = bus
         self._parser = protocol.StreamParser()
         goal = control_table.BY_NAME['goal_position']
+        self._address = goal.address
         self._goal = list(range(goal.address, goal.address + goal.size))
+        # id -> the servo's memory: this runs in the simulator's I/O thread, on every write,
+        # and must not slow the simulator it measures.
+        self._memories: dict[int, Memory] = {}
 
     def feed(self, data: bytes, now_s: float) -> None:
         """Look at bytes from the host; log the goals found in whole packets."""
@@ -180,6 +185,8 @@ class GoalTracer:
                 self._goal_in(now_s, packet.servo_id, address, params[2:])
             elif packet.instruction == protocol.Instruction.SYNC_WRITE:
                 length = params[2] | (params[3] << 8)
+                if length < len(self._goal):
+                    continue
                 for start in range(4, len(params) - length, length + 1):
                     self._goal_in(now_s, params[start], address,
                                   params[start + 1:start + 1 + length])
@@ -187,15 +194,23 @@ class GoalTracer:
 
     def _goal_in(self, now_s: float, servo_id: int, address: int, chunk: bytes) -> None:
         """Log the goal position in one servo's written bytes, if they hold it whole."""
-        try:
-            memory = self._bus.servo(servo_id).memory
-        except ValueError:
-            return   # not a servo of this bus (broadcast, or an id nobody has)
+        size = len(self._goal)
+        if address == self._address:
+            if len(chunk) >= size:
+                self._log(now_s, servo_id, chunk[:size])
+            return
+        memory = self._memories.get(servo_id)
+        if memory is None or memory.raw[7] != servo_id:   # id (7): a servo may change its id
+            self._memories = {sid: self._bus.servo(sid).memory for sid in self._bus.servo_ids()}
+            memory = self._memories.get(servo_id)
+            if memory is None:
+                return   # not a servo of this bus (broadcast, or an id nobody has)
+        if address not in memory.table.indirect:
+            return   # neither Goal Position nor indirect data: no goal in it
         targets = [memory.target(address + k) for k in range(len(chunk))]
-        goal = self._goal
-        for offset in range(len(chunk) - len(goal) + 1):
-            if targets[offset:offset + len(goal)] == goal:
-                self._log(now_s, servo_id, chunk[offset:offset + len(goal)])
+        for offset in range(len(chunk) - size + 1):
+            if targets[offset:offset + size] == self._goal:
+                self._log(now_s, servo_id, chunk[offset:offset + size])
                 return
 
     def _log(self, now_s: float, servo_id: int, raw: bytes) -> None:
