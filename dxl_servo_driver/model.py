@@ -346,7 +346,6 @@ class GoalSlot:
     """
 
     def __init__(self, model: Model, mode: str, map_address: int, data_address: int) -> None:
-        self.mode = mode
         self.registers = SLOT_REGISTERS[mode]
         self.data_address = data_address
         self.map_address = map_address
@@ -358,7 +357,6 @@ class GoalSlot:
         for item in items:
             targets.extend(range(item.address, item.address + item.size))
             self.needs[item.name] = len(targets)   # bytes a write of this goal must carry
-        self.used = len(targets)
         self.targets = tuple(targets[k % len(targets)] for k in range(GOAL_SLOT_SIZE))
 
     def map_bytes(self) -> bytes:

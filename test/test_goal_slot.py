@@ -92,22 +92,31 @@ def _manager(rig: Rig, **extra: Any) -> Manager:
     return manager
 
 
-def test_goals_of_three_modes_go_out_in_one_sync_write(rig: Rig) -> None:
-    manager = _manager(rig)
-    assert all(servo.goal_slot is not None for servo in manager.order)
-    assert manager.goal_slots_in_use == '3 of 3'
-    profile_before = rig.reg(1, 'profile_velocity')
+def _command_three_modes(rig: Rig, manager: Manager) -> None:
+    """Queue a goal for each of arm (position), wheel (velocity), grip (current); write."""
     assert manager.command('position', ['arm'], [0.5]).success
     assert manager.command('velocity', ['wheel'], [1.0]).success
     assert manager.command('current', ['grip'], [0.2]).success
     rig.tap.packets.clear()
     assert manager.write_pending() == 3
-    sync = _sync_writes(rig)
-    assert len(rig.tap.packets) == len(sync) == 1
-    assert _address_length(sync[0]) == (SLOT_ADDRESS, 4)   # the longest: position, velocity
+
+
+def _assert_three_goals(rig: Rig) -> None:
     assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.5)
     assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(1.0)
     assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.2)
+
+
+def test_goals_of_three_modes_go_out_in_one_sync_write(rig: Rig) -> None:
+    manager = _manager(rig)
+    assert all(servo.goal_slot is not None for servo in manager.order)
+    assert manager.goal_slots_in_use == '3 of 3'
+    profile_before = rig.reg(1, 'profile_velocity')
+    _command_three_modes(rig, manager)
+    sync = _sync_writes(rig)
+    assert len(rig.tap.packets) == len(sync) == 1
+    assert _address_length(sync[0]) == (SLOT_ADDRESS, 4)   # the longest: position, velocity
+    _assert_three_goals(rig)
     assert rig.reg(1, 'profile_velocity') == profile_before
     # A current goal alone needs 2 bytes.
     assert manager.command('current', ['grip'], [-0.1]).success
@@ -120,17 +129,11 @@ def test_goals_of_three_modes_go_out_in_one_sync_write(rig: Rig) -> None:
 def test_per_register_writes_one_sync_write_per_goal_register(rig: Rig) -> None:
     manager = _manager(rig, write_mode='per_register')
     assert all(servo.goal_slot is None for servo in manager.order)
-    assert manager.command('position', ['arm'], [0.5]).success
-    assert manager.command('velocity', ['wheel'], [1.0]).success
-    assert manager.command('current', ['grip'], [0.2]).success
-    rig.tap.packets.clear()
-    assert manager.write_pending() == 3
+    _command_three_modes(rig, manager)
     sync = _sync_writes(rig)
     assert len(sync) == len(rig.tap.packets) == 3
     assert sorted(_address_length(p) for p in sync) == [(102, 2), (104, 4), (116, 4)]
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.5)
-    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(1.0)
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.2)
+    _assert_three_goals(rig)
 
 
 def test_current_based_position_carries_both_goals(rig: Rig) -> None:

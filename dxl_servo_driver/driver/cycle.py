@@ -384,11 +384,11 @@ class Cycle:
                     for sid, value in goals.items():
                         servo = by_id[sid]
                         slot = servo.goal_slot
-                        need = slot.needs.get(register) if slot is not None else None
-                        if need is None or not slot.holds(servo.goal_raw):  # type: ignore
+                        if (slot is None or register not in slot.needs
+                                or not slot.holds(servo.goal_raw)):
                             loose.setdefault(register, {})[sid] = value
                         else:
-                            needs[sid] = max(need, needs.get(sid, 0))
+                            needs[sid] = max(slot.needs[register], needs.get(sid, 0))
                 writes = self._slot_writes(needs)
             for address, length, data in writes:
                 bus.sync_write(address, length, data)

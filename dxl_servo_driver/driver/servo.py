@@ -68,8 +68,8 @@ class Servo:
     torque_wanted: bool = False
     torque_maybe_on: bool = False   # a torque-on was sent and no torque-off confirmed since
     goal_raw: Dict[str, int] = field(default_factory=dict)   # last goal written, per register
-    # The indirect goal slot mapped for its mode, once a write through it was read back right
-    # (None: goals are written per register).
+    # The indirect goal slot mapped for its mode (None: goals are written per register); every
+    # hold checks it by reading back what it wrote through it.
     goal_slot: Optional[GoalSlot] = None
     slot_refused: bool = False      # a write through the slot did not read back: never again
     last_command_s: float = 0.0     # for command_timeout

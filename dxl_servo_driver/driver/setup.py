@@ -194,7 +194,7 @@ class Setup:
                 if goal is not None:
                     goal = clamp_position(servo, after)
                     yield from self._set_goals(servo, {'goal_position': goal})
-            elif goal is not None:
+            elif goal is not None and servo.goal_slot is not None:
                 # A servo may take its present position as its goal at torque on (the
                 # simulator does): a goal slot repeats goal_position with other goals, so the
                 # driver's record must be what the servo holds, not what was written before.
