@@ -53,10 +53,11 @@ class Recovery:
         """Restore a servo that restarted on its own (power cut, brown-out), step by step."""
         if servo.name in self._tasks:
             return
+        # The task first: whoever sees the restart counted (another thread) sees it restoring.
+        self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()))
         servo.restarts += 1
         self._warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
                    'restoring its configuration and mode; it will hold where it is')
-        self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()))
 
     def restore(self, servo: Servo, last_joint_pulses: Optional[int]) -> Steps:
         """
