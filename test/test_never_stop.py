@@ -115,7 +115,8 @@ class Truth:
 
 
 def stale_wheel_samples(messages: List[JointState], truth: Truth, after_s: float,
-                        before_s: float, turn_offset: int) -> Tuple[int, int]:
+                        before_s: float, turn_offset: int,
+                        why: Optional[List[str]] = None) -> Tuple[int, int]:
     """
     Count the wheel samples that are older than the request they are published for.
 
@@ -125,7 +126,7 @@ def stale_wheel_samples(messages: List[JointState], truth: Truth, after_s: float
     its request. The upper end is wide because a frozen adapter holds the request itself (up
     to 60 ms here): the servo then samples later than the stamp, which is fresh, not stale.
     3 pulses is the tolerance for sampling between steps.
-    Returns (checked, stale).
+    Returns (checked, stale); each stale sample is described in why (if given).
     """
     checked = stale = 0
     for msg in messages:
@@ -138,6 +139,9 @@ def stale_wheel_samples(messages: List[JointState], truth: Truth, after_s: float
         checked += 1
         if not window or not min(window) - 3 <= raw <= max(window) + 3:
             stale += 1
+            if why is not None:
+                why.append(f'stamp {stamp:.4f}: raw {raw}, truth {min(window, default=None)}..'
+                           f'{max(window, default=None)} in [-2, +100] ms')
     return checked, stale
 
 
@@ -226,8 +230,10 @@ def test_cycle_survives_a_misbehaving_adapter(profile: str, read_mode: str) -> N
         # joint_states kept coming, and none of them was stale.
         during = [m for m in messages.items if faulted_s < stamp_s(m) < cleared_s]
         assert len(during) >= 30, len(during)
-        checked, stale = stale_wheel_samples(messages.items, truth, faulted_s, cleared_s, 0)
-        assert checked >= 20 and stale == 0, (checked, stale)
+        why: List[str] = []
+        checked, stale = stale_wheel_samples(messages.items, truth, faulted_s, cleared_s, 0,
+                                             why)
+        assert checked >= 20 and stale == 0, (checked, stale, why[:5])
         assert wrong_reads == []
         # The faults did happen, to the read asked for.
         assert sum(port.stats.as_dict().values()) > 0, port.stats
@@ -246,8 +252,9 @@ def test_cycle_survives_1_khz_without_faults() -> None:
         truth.stop()
         assert h.node._thread is not None and h.node._thread.is_alive()
         assert h.node.cycle_errors == 0
-        checked, stale = stale_wheel_samples(messages.items, truth, start_s + 0.5, end_s, 0)
-        assert checked >= 100 and stale == 0, (checked, stale)
+        why: List[str] = []
+        checked, stale = stale_wheel_samples(messages.items, truth, start_s + 0.5, end_s, 0, why)
+        assert checked >= 100 and stale == 0, (checked, stale, why[:5])
 
 
 class Raising:
