@@ -51,7 +51,8 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     """Run the driver's bus layer as the node's cycle does, without ROS (fast: Fast Sync Read)."""
     sys.path.insert(0, '.')
     from dxl_servo_driver import model
-    from dxl_servo_driver.bus import Bus, open_port
+    from dxl_servo_driver.bus import Bus
+    from dxl_servo_driver.serial_port import open_port
     from dxl_servo_driver.models import model_for
     block = model.state_block(model_for(1030), 'present_current')
     bus = Bus(open_port(port_name, baud), baud, latency_timer_s=0.0, return_delay_s=0.0)

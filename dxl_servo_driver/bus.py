@@ -23,14 +23,10 @@ timer: a device that never stops sending cannot hold a transaction past it.
 """
 
 from dataclasses import dataclass, field
-import errno
-import os
-import select
 import struct
-import termios
 import threading
 import time
-from typing import Dict, Iterable, List, Optional, Protocol, Sequence, Tuple, Union
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
@@ -38,7 +34,7 @@ from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, fast_sync_head,
     fast_sync_size, Frame, HEADER, Instruction, MAX_ID, parse_fast_sync_status, scan_frames,
     STATUS_OVERHEAD, unstuff)
-import serial
+from dxl_servo_driver.serial_port import RawPort
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
 DEADLINE_SLACK_S = 0.002
@@ -61,192 +57,6 @@ ERROR_TEXT: Dict[int, str] = {
 }
 # The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
 BROADCAST_PING_PER_ID_S = 0.003
-
-
-class RawPort(Protocol):
-    """The byte-level port the bus needs (a serial device or the simulator's in-process port)."""
-
-    @property
-    def baudrate(self) -> int:
-        """Return the line speed in bit/s."""
-
-    @baudrate.setter
-    def baudrate(self, baud_bps: int) -> None:
-        """Change the line speed."""
-
-    @property
-    def in_waiting(self) -> int:
-        """Return how many received bytes wait to be read."""
-
-    def write(self, data: bytes) -> int:
-        """Send bytes."""
-
-    def read(self, size: int, timeout_s: float) -> bytes:
-        """Block until size bytes arrived or timeout_s passed; return what arrived."""
-
-    def reset_input_buffer(self) -> None:
-        """Drop whatever was received and not read."""
-
-    def close(self) -> None:
-        """Release the port."""
-
-
-class SerialPort:
-    """A serial device opened with pyserial and read with poll() on its file descriptor."""
-
-    def __init__(self, device: str, baud_bps: int) -> None:
-        try:
-            self._serial = serial.Serial(device, baud_bps, timeout=0, write_timeout=1.0,
-                                         exclusive=True)
-        except serial.SerialException as exc:
-            raise PortError(_describe_open_error(device, exc)) from None
-        except (OSError, ValueError) as exc:
-            raise PortError(f'cannot open {device}: {exc}') from None
-        self.device = device
-        self.low_latency = False
-        try:
-            # ASYNC_LOW_LATENCY: the kernel side of a 1 ms latency timer (FTDI adapters).
-            self._serial.set_low_latency_mode(True)
-            self.low_latency = True
-        except (OSError, ValueError, AttributeError, NotImplementedError):
-            pass
-        self._fd = self._serial.fileno()
-        self._poll = select.poll()
-        self._poll.register(self._fd, select.POLLIN | select.POLLERR | select.POLLHUP)
-        self._write_poll = select.poll()
-        self._write_poll.register(self._fd, select.POLLOUT | select.POLLERR | select.POLLHUP)
-        self._attrs = termios.tcgetattr(self._fd)
-        self._vmin = -1
-
-    @property
-    def baudrate(self) -> int:
-        """Return the line speed in bit/s."""
-        return int(self._serial.baudrate)
-
-    @baudrate.setter
-    def baudrate(self, baud_bps: int) -> None:
-        try:
-            self._serial.baudrate = baud_bps
-        except (OSError, ValueError, serial.SerialException) as exc:
-            raise PortError(f'{self.device}: cannot set {baud_bps} bps: {exc}') from None
-        # The cached attributes carry the speed: take them again, or the next VMIN change
-        # would put the old speed back.
-        self._attrs = termios.tcgetattr(self._fd)
-        self._vmin = -1
-
-    def write(self, data: bytes) -> int:
-        """Send all bytes; PortError when the device is gone or stays blocked."""
-        view = memoryview(data)
-        sent = 0
-        deadline = time.monotonic() + 1.0
-        try:
-            while sent < len(view):
-                try:
-                    sent += os.write(self._fd, view[sent:])
-                except BlockingIOError:
-                    # The port is non-blocking (pyserial opens it so): wait for room, but not
-                    # forever (a wedged adapter).
-                    if time.monotonic() > deadline:
-                        raise PortError(f'{self.device}: write blocked for 1 s; is the '
-                                        'adapter wedged?') from None
-                    self._write_poll.poll(100)
-        except OSError as exc:
-            raise PortError(f'{self.device}: write failed ({exc.strerror}); '
-                            'was the adapter unplugged?') from None
-        return sent
-
-    def _wake_after(self, size: int) -> None:
-        # In non-canonical mode with VTIME 0 the kernel's poll() reports the tty readable only
-        # once VMIN bytes are there: one wake-up per reply block instead of one per USB packet.
-        vmin = max(1, min(size, 255))
-        if vmin != self._vmin:
-            self._attrs[6][termios.VMIN] = vmin
-            self._attrs[6][termios.VTIME] = 0
-            try:
-                termios.tcsetattr(self._fd, termios.TCSANOW, self._attrs)
-            except termios.error:
-                return
-            self._vmin = vmin
-
-    def read(self, size: int, timeout_s: float) -> bytes:
-        """Block until size bytes arrived or timeout_s passed; return what arrived."""
-        chunks = bytearray()
-        deadline = time.monotonic() + timeout_s
-        fd = self._fd
-        while True:
-            self._wake_after(size - len(chunks))
-            remaining_ms = (deadline - time.monotonic()) * 1000.0
-            events = self._poll.poll(max(remaining_ms, 0.0))
-            if events:
-                # Drain what the kernel holds (a tty read returns it in pieces) before
-                # polling again.
-                try:
-                    while len(chunks) < size:
-                        data = os.read(fd, size - len(chunks))
-                        if not data:
-                            # poll() said readable but nothing comes: the device went away.
-                            raise PortError(f'{self.device}: device disconnected')
-                        chunks += data
-                except BlockingIOError:
-                    pass
-                except OSError as exc:
-                    raise PortError(f'{self.device}: read failed ({exc.strerror}); '
-                                    'was the adapter unplugged?') from None
-            if len(chunks) >= size:
-                return bytes(chunks)
-            if remaining_ms <= 0.0:
-                # Fewer than VMIN bytes never wake poll(): take whatever is there now.
-                try:
-                    chunks += os.read(fd, size - len(chunks))
-                except BlockingIOError:
-                    pass
-                except OSError as exc:
-                    raise PortError(f'{self.device}: read failed ({exc.strerror}); '
-                                    'was the adapter unplugged?') from None
-                return bytes(chunks)
-
-    @property
-    def in_waiting(self) -> int:
-        """Return how many received bytes wait to be read."""
-        try:
-            return int(self._serial.in_waiting)
-        except (OSError, serial.SerialException) as exc:
-            raise PortError(f'{self.device}: {exc}') from None
-
-    def reset_input_buffer(self) -> None:
-        """Drop unread input."""
-        try:
-            self._serial.reset_input_buffer()
-        except (OSError, serial.SerialException) as exc:
-            raise PortError(f'{self.device}: {exc}') from None
-
-    def close(self) -> None:
-        """Close the device."""
-        try:
-            self._serial.close()
-        except (OSError, serial.SerialException):
-            pass
-
-
-def _describe_open_error(device: str, exc: Exception) -> str:
-    number = getattr(exc, 'errno', None)
-    if number == errno.ENOENT or not os.path.exists(device):
-        return (f'port {device} does not exist: is the USB adapter plugged in? '
-                '(ls /dev/ttyUSB* /dev/ttyACM* /dev/ttyDXL)')
-    if number == errno.EACCES:
-        return (f'permission denied on {device}: add your user to the dialout group '
-                '(sudo usermod -aG dialout $USER, then log in again) or install the udev rule')
-    if number == errno.EBUSY or 'exclusive' in str(exc).lower() or 'lock' in str(exc).lower():
-        return f'port {device} is busy: another program holds it open'
-    return f'cannot open {device}: {exc}'
-
-
-def open_port(device: str, baud_bps: int) -> SerialPort:
-    """Open a real serial device; PortError with a clear reason when it cannot."""
-    if baud_bps not in ct.BAUD_RATES.values():
-        raise PortError(f"baud rate {baud_bps} is not one of the servo's "
-                        f'{sorted(ct.BAUD_RATES.values())}')
-    return SerialPort(device, baud_bps)
 
 
 @dataclass

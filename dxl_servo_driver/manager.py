@@ -20,7 +20,7 @@ from typing import Any, Callable, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
-from dxl_servo_driver.bus import Bus, RawPort
+from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goal, Goals
@@ -33,6 +33,7 @@ from dxl_servo_driver.driver.servo import (
     ManagerError, PortState, Result, Roster, Servo, StaleGuard)
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.tasks import Task, TaskRunner
 from dxl_servo_driver.transports import open_transport, PortFactory
 
@@ -237,12 +238,12 @@ class Manager:
             self._goals.clear()
             self._cycle.want_full()
 
-    def deactivate(self) -> List[str]:
+    def deactivate(self) -> List[Tuple[str, str]]:
         """
         Torque off (if torque_off_on_shutdown); pending goals and tasks dropped.
 
-        Returns what could not be done, one line per servo (empty: every torque-off was
-        acknowledged).
+        Returns what could not be done: (joint, why) for each servo whose torque-off was not
+        acknowledged (empty: every one was).
         """
         with self.lock:
             self._goals.clear()
@@ -252,21 +253,29 @@ class Manager:
                 return []
             return self.torque_off_all()
 
-    def torque_off_all(self) -> List[str]:
-        """Torque off every servo that may have torque on; return the failures."""
+    def torque_off_all(self) -> List[Tuple[str, str]]:
+        """Torque off every servo that may have torque on; return (joint, why) of the failures."""
         with self.lock:
             if self._link.bus is None:
-                return [f'joint {s.name!r}: the port is closed' for s in self.order
-                        if s.torque_maybe_on]
+                return [(s.name, 'the port is closed') for s in self.order if s.torque_maybe_on]
+            lost = (self._port.error or 'no reason given') if self._port.lost else ''
             failures = []
             with self._link.uninterruptible():   # a signal must not cut it
                 for servo in self.order:
                     if not (servo.online or servo.torque_maybe_on):
                         continue
+                    if lost:
+                        # Nothing reaches the servos: said, not tried (the port is closed).
+                        if servo.torque_maybe_on:
+                            failures.append((servo.name, f'the port is lost ({lost})'))
+                        continue
                     try:
                         self._link.write(servo, 'torque_enable', 0)
-                    except (PortError, CommError) as exc:
-                        failures.append(f'joint {servo.name!r}: {exc}')
+                    except PortError as exc:
+                        lost = str(exc)
+                        failures.append((servo.name, f'the port is lost ({lost})'))
+                    except CommError as exc:
+                        failures.append((servo.name, str(exc)))
             return failures
 
     def close(self) -> None:

@@ -303,20 +303,33 @@ class DriverNode(LifecycleNode):
         self._runner.stop()
         self._trajectories.cancel()
 
-    def _torque_off_and_say(self, why: str) -> bool:
-        """Torque off (when configured to) every servo that may be on; log what happened."""
-        failures = self.manager.deactivate()
-        if not self.config.torque_off_on_shutdown:
+    def _torque_off(self) -> str:
+        """
+        Torque off (when configured to) every servo that may be on: '' or what failed.
+
+        What failed is one phrase for the log: the joints grouped by the reason they were not
+        switched off ("torque off FAILED for 'a', 'b': the port is lost (...)").
+        """
+        try:
+            failures = self.manager.deactivate()
+        except Exception as exc:  # noqa: B902 - a stop must end with a true line, whatever broke
+            return f'torque off FAILED: {exc!r}'
+        by_reason: Dict[str, List[str]] = {}
+        for name, why in failures:
+            by_reason.setdefault(why, []).append(repr(name))
+        return '; '.join(f'torque off FAILED for {", ".join(names)}: {why}'
+                         for why, names in by_reason.items())
+
+    def _torque_off_and_say(self, why: str) -> None:
+        """Torque off (when configured to); an error line says what failed."""
+        failed = self._torque_off()
+        if failed:
+            self.get_logger().error(f'{why}: {failed}')
+        elif not self.config.torque_off_on_shutdown:
             self.get_logger().info(f'{why}: torque left on (torque_off_on_shutdown is false)')
-            return True
-        if failures:
-            self.get_logger().error(f'{why}: torque off FAILED for {len(failures)} servo(s): '
-                                    + '; '.join(failures))
-            return False
-        return True
 
     def shutdown(self) -> None:
-        """Stop the cycle, apply torque_off_on_shutdown, close the port. Idempotent."""
+        """Stop the cycle, apply torque_off_on_shutdown, close the port; one line says so."""
         if self._shut_down:
             return
         self._shut_down = True
@@ -325,14 +338,16 @@ class DriverNode(LifecycleNode):
         if self.manager.bus is None:
             self.manager.close()
             return
-        ok = self._torque_off_and_say('stopped')
+        failed = self._torque_off()
         self.manager.close()
-        if ok:
-            torque = 'torque off' if self.config.torque_off_on_shutdown else 'torque left on'
-            self.get_logger().info(f'stopped: {torque}, port {self.config.port} closed')
+        port = f'port {self.config.port} closed'
+        if failed:
+            self.get_logger().error(f'stopped: {failed}; {port}')
+        elif self.config.torque_off_on_shutdown:
+            self.get_logger().info(f'stopped: torque off, {port}')
         else:
-            self.get_logger().error(f'stopped: port {self.config.port} closed; some servos may '
-                                    'still have torque on (see above)')
+            self.get_logger().info(f'stopped: torque left on (torque_off_on_shutdown is false), '
+                                   f'{port}')
 
     def start(self) -> None:
         """With autostart, configure and activate; StartupFailure when that fails."""

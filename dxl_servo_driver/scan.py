@@ -25,10 +25,11 @@ from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set,
 from dxl_servo_driver import config
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import models
-from dxl_servo_driver.bus import Bus, open_port
+from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.protocol import MAX_ID
+from dxl_servo_driver.serial_port import open_port
 
 EXIT_OK = 0
 EXIT_NOT_FOUND = 1

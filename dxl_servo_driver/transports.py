@@ -10,8 +10,8 @@ this is the one module that imports it.
 import importlib
 from typing import Any, Callable, Dict, Tuple
 
-from dxl_servo_driver.bus import open_port as open_serial, RawPort
 from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.serial_port import open_port as open_serial, RawPort
 
 # What a transport returns: the port, and the simulated bus behind it (None for hardware).
 Opened = Tuple[RawPort, Any]

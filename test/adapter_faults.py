@@ -27,9 +27,9 @@ import time
 import tty
 from typing import Any, Callable, Optional
 
-from dxl_servo_driver.bus import RawPort
 from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
-from dxl_servo_driver.sim.virtual_bus import set_tty_speed, tty_speed_bps
+from dxl_servo_driver.serial_port import RawPort
+from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
 
 # Replies a late copy is chosen from.
 LATE_HISTORY = 20

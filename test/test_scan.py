@@ -7,8 +7,9 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import config, scan
 from dxl_servo_driver import control_table as ct
-from dxl_servo_driver.bus import Bus, open_port
+from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError
+from dxl_servo_driver.serial_port import open_port
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
 import yaml

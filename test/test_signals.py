@@ -138,6 +138,33 @@ def test_repeated_signals_do_not_cut_the_torque_off(
         node.stop()
 
 
+@pytest.mark.parametrize('noticed', [True, False], ids=['after the node noticed', 'at once'])
+def test_sigint_with_the_adapter_unplugged_exits_zero_and_says_so(
+        virtual_bus: StartVirtualBus, workdir: pathlib.Path, noticed: bool) -> None:
+    """The servos cannot be reached: one true line says so, and the exit is still clean."""
+    ids = [1, 2, 3]
+    link = workdir / 'ttyDXL'
+    bus = virtual_bus(ids, 1000000, link=link)
+    node = NodeProcess(workdir, params_yaml(str(link), many_joints(len(ids))),
+                       domain_id=fresh_domain_id())
+    try:
+        wait_output(node, r'active:')
+        bus.stop()   # the adapter is unplugged: its pty is gone
+        if noticed:
+            wait_output(node, r'reconnects when the device returns')
+        node.proc.send_signal(signal.SIGINT)
+        code = node.wait(EXIT_TIMEOUT_S)
+        output = node.output()
+        assert code == 0, output
+        assert 'Traceback' not in output, output
+        failed = [line for line in output.splitlines() if 'torque off FAILED' in line]
+        assert len(failed) == 1, output
+        assert re.search(r"stopped: torque off FAILED for 'j1', 'j2', 'j3': the port is lost",
+                         failed[0]), output
+    finally:
+        node.stop()
+
+
 # bad parameter files ---------------------------------------------------------------------
 
 GOOD_TOP = '/**:\n  ros__parameters:\n    port: sim\n'

@@ -10,7 +10,7 @@ stays up) until the adapter comes back; every servo then rejoins on its own.
 
 from typing import Any, Callable, List, Optional
 
-from dxl_servo_driver.bus import Bus, RawPort
+from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
@@ -19,6 +19,7 @@ from dxl_servo_driver.driver.servo import (
     IDX_CANARY, IDX_HW_ERROR, Log, ManagerError, PortState, Roster, Servo, Throttle)
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.tasks import Steps, Task, TaskRunner
 from dxl_servo_driver.transports import PortFactory
 

@@ -28,16 +28,13 @@ then released at the times computed by sim/timing.py.
 """
 
 import argparse
-import array
 import errno
-import fcntl
 import heapq
 import io
 import os
 import select
 import signal
 import sys
-import termios
 import threading
 import time
 import tty
@@ -51,60 +48,11 @@ from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler
+from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
 
 PTS_PREFIX = '/dev/pts/'
 READ_CHUNK = 4096
 SETUP_TIMEOUT_S = 3.0  # servos may still be booting when the bus is created
-
-# struct termios2 on the generic Linux ABI (x86, arm, arm64, riscv): four tcflag_t, c_line,
-# c_cc[19], c_ispeed, c_ospeed = 44 bytes; speeds are the 10th and 11th 32-bit words.
-_TERMIOS2_WORDS = 11
-_TERMIOS2_SIZE = 4 * _TERMIOS2_WORDS
-_IOC_READ = 2
-_IOC_WRITE = 1
-TCGETS2 = (_IOC_READ << 30) | (_TERMIOS2_SIZE << 16) | (ord('T') << 8) | 0x2A
-TCSETS2 = (_IOC_WRITE << 30) | (_TERMIOS2_SIZE << 16) | (ord('T') << 8) | 0x2B
-BOTHER = 0o010000
-_CFLAG_WORD = 2
-_ISPEED_WORD = 9
-_OSPEED_WORD = 10
-
-
-def _standard_speeds() -> dict[int, int]:
-    """Termios Bxxx constant -> bps, for the fallback when TCGETS2 is unavailable."""
-    speeds: dict[int, int] = {}
-    for name in dir(termios):
-        if name.startswith('B') and name[1:].isdigit():
-            speeds[getattr(termios, name)] = int(name[1:])
-    return speeds
-
-
-_SPEEDS = _standard_speeds()
-
-
-def tty_speed_bps(fd: int) -> int:
-    """Return the output speed of a terminal in bps, custom (BOTHER) speeds included."""
-    buf = array.array('I', [0] * _TERMIOS2_WORDS)
-    try:
-        fcntl.ioctl(fd, TCGETS2, buf, True)
-        if buf[_OSPEED_WORD] > 0:
-            return int(buf[_OSPEED_WORD])
-    except OSError:
-        pass
-    return _SPEEDS.get(termios.tcgetattr(fd)[5], 0)
-
-
-def set_tty_speed(fd: int, baud_bps: int) -> None:
-    """Set a terminal's speeds to baud_bps through termios2 (any rate); best effort."""
-    buf = array.array('I', [0] * _TERMIOS2_WORDS)
-    try:
-        fcntl.ioctl(fd, TCGETS2, buf, True)
-        buf[_CFLAG_WORD] = (buf[_CFLAG_WORD] & ~termios.CBAUD) | BOTHER
-        buf[_ISPEED_WORD] = baud_bps
-        buf[_OSPEED_WORD] = baud_bps
-        fcntl.ioctl(fd, TCSETS2, buf)
-    except OSError:
-        pass  # the client sets its own speed anyway
 
 
 class StartupError(Exception):
