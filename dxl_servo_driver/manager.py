@@ -191,6 +191,7 @@ class Manager:
         """Open the port, find and verify every servo, apply the configuration."""
         with self.lock:
             self._ports.connect()
+            self._forget_clocks()
             try:
                 self._setup.configure()
                 self._cycle.refresh()
@@ -206,6 +207,12 @@ class Manager:
                 self._warn(f'loop_rate {self.config.loop_rate:g} Hz is above what the bus can '
                            f'carry ({budget.rate_limit_hz:.0f} Hz): running as fast as the bus '
                            'allows')
+
+    def _forget_clocks(self) -> None:
+        # Nobody watched the servos since the last activation (or ever): any of them may have
+        # restarted (a simulator: be a new one) with its Realtime Tick from 0.
+        for servo in self.order:
+            servo.tick.reset()
 
     def bus_budget(self) -> model.BusBudget:
         """Return what one cycle costs on this bus."""
@@ -234,6 +241,7 @@ class Manager:
     def activate(self) -> None:
         """Goal = present for every servo, then torque on (if torque_on_start)."""
         with self.lock:
+            self._forget_clocks()
             self._setup.activate(self.active_servos())
             self._goals.clear()
             self._cycle.want_full()

@@ -416,11 +416,19 @@ class TickClock:
     raise the bound). A sample whose tick is below s + bound by more than tolerance_ms was taken
     before its request went out: it answers an earlier request. The bound is relaxed by
     drift_ppm between samples, for the two clocks' crystals.
+
+    The offset holds only while the servo runs on: whoever stops watching a servo (cleanup,
+    deactivate, a lost port) must reset() it, since the servo may have restarted meanwhile (or,
+    the simulator, be a new one), its tick from 0. A bound no sample confirmed for forget_after_s
+    is forgotten too: relaxed by drift it would soon mean nothing, and past half the tick's wrap
+    it would mean the opposite.
     """
 
-    def __init__(self, tolerance_ms: float = 2.0, drift_ppm: float = 300.0) -> None:
+    def __init__(self, tolerance_ms: float = 2.0, drift_ppm: float = 300.0,
+                 forget_after_s: float = 60.0) -> None:
         self.tolerance_ms = tolerance_ms
         self.drift = drift_ppm * 1e-6
+        self.forget_after_ms = forget_after_s * 1000.0
         self._bound_ms: Optional[float] = None
         self._bound_at_ms = 0.0
         self.refused = 0
@@ -434,7 +442,7 @@ class TickClock:
         sent_ms = sent_s * 1000.0
         received_ms = received_s * 1000.0
         bound = self._bound_ms
-        if bound is None:
+        if bound is None or received_ms - self._bound_at_ms > self.forget_after_ms:
             self._bound_ms = _wrap_ms(tick - received_ms)
             self._bound_at_ms = received_ms
             return True

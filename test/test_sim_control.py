@@ -18,6 +18,7 @@ import pytest
     ('plug 7', Command('plug', 7)),
     ('load 1 1.5', Command('load', 1, 1.5)),
     ('voltage 1 11.1', Command('voltage', 1, 11.1)),
+    ('tick 1 32760', Command('tick', 1, 32760.0)),
     ('get 1 present_position', Command('get', 1, text='present_position')),
     ('get 1 132', Command('get', 1, text='present_position')),
     ('get 1 0', Command('get', 1, text='model_number')),
@@ -49,6 +50,10 @@ def test_good_lines_parse(line: str, expected: Command) -> None:
     ('load 1 -2', '>= 0'),
     ('load 1 inf', 'finite'),
     ('voltage 1 -12', '>= 0'),
+    ('tick 1 32768', 'bad tick'),
+    ('tick 1 -1', 'bad tick'),
+    ('tick 1 1.5', 'bad tick'),
+    ('tick 1', 'usage: tick ID MS'),
     ('get 1 no_such_register', 'unknown register'),
     ('get 1 133', 'no register starts at address 133'),
     ('get 1 -5', 'unknown register'),
@@ -113,10 +118,23 @@ def test_fault_commands_reach_the_bus() -> None:
     assert handle_line('powercycle 1', bus) == 'ok powercycle 1'
 
 
+def test_tick_sets_the_realtime_tick_and_it_counts_on() -> None:
+    now = [10.0]
+    bus = SimBus([1], clock=lambda: now[0], boot_time_s=0.0)
+    assert handle_line('tick 1 32766', bus) == 'ok tick 1 32766'
+    assert bus.read_register(1, 'realtime_tick') == 32766
+    now[0] += 0.0015
+    assert bus.read_register(1, 'realtime_tick') == 32767
+    now[0] += 0.001
+    assert bus.read_register(1, 'realtime_tick') == 0   # wrapped
+    now[0] += 0.5
+    assert bus.read_register(1, 'realtime_tick') == 500
+
+
 def test_unknown_servo_is_an_error_line_not_a_crash() -> None:
     bus = _bus([1])
     for line in ('get 9 id', 'dump 9', 'drop 9 0.5', 'error 9 shock', 'powercycle 9',
-                 'unplug 9', 'plug 9', 'load 9 1', 'voltage 9 12'):
+                 'unplug 9', 'plug 9', 'load 9 1', 'voltage 9 12', 'tick 9 5'):
         answer = handle_line(line, bus)
         assert answer is not None and answer.startswith('error: '), line
         assert '\n' not in answer

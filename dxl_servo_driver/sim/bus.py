@@ -223,6 +223,11 @@ class SimBus:
         with self.lock:
             self._slot(servo_id).corrupt_probability = _probability(probability)
 
+    def set_tick(self, servo_id: int, tick_ms: int) -> None:
+        """Make a servo's Realtime Tick read tick_ms now and count on from there."""
+        with self.lock:
+            self._servo(servo_id).set_tick(self._clock(), int(tick_ms))
+
     def inject_error(self, servo_id: int, kind: str) -> None:
         """Latch a hardware error: overload, overheat, voltage, encoder or shock."""
         if kind not in ERROR_KINDS:

@@ -12,6 +12,7 @@ Commands (SPEC section 3, plus inspection):
   unplug ID / plug ID          servo leaves / rejoins the bus
   load ID NM                   resisting torque at the horn, N*m (>= 0)
   voltage ID VOLTS             input voltage, V (>= 0)
+  tick ID MS                   Realtime Tick set to MS (0..32767) now, counting on from there
   get ID NAME                  one register, by snake_case name or decimal address (an address
                                is looked up in that servo's model's table)
   dump ID                      every register, one line
@@ -26,14 +27,15 @@ from typing import Callable, Protocol
 from dxl_servo_driver.models import ALL_MODELS, Model, model_for
 
 MAX_SERVO_ID = 252  # 253..255 are reserved / broadcast in Protocol 2.0
+MAX_TICK_MS = 32767   # the Realtime Tick's range
 ERROR_KINDS = ('overload', 'overheat', 'voltage', 'encoder', 'shock')
 HELP_TEXT = ('commands: drop ID P | corrupt ID P'
              ' | error ID overload|overheat|voltage|encoder|shock | powercycle ID'
-             ' | unplug ID | plug ID | load ID NM | voltage ID VOLTS'
+             ' | unplug ID | plug ID | load ID NM | voltage ID VOLTS | tick ID MS'
              ' | get ID NAME|ADDRESS | dump ID | stats | help')
 
 # name -> argument kinds after the command word; 'id' servo id, 'prob' 0..1, 'nonneg' float >= 0,
-# 'kind' one of ERROR_KINDS, 'register' name or address
+# 'kind' one of ERROR_KINDS, 'register' name or address, 'tick' 0..32767
 _SIGNATURES: dict[str, tuple[str, ...]] = {
     'drop': ('id', 'prob'),
     'corrupt': ('id', 'prob'),
@@ -43,6 +45,7 @@ _SIGNATURES: dict[str, tuple[str, ...]] = {
     'plug': ('id',),
     'load': ('id', 'nonneg'),
     'voltage': ('id', 'nonneg'),
+    'tick': ('id', 'tick'),
     'get': ('id', 'register'),
     'dump': ('id',),
     'stats': (),
@@ -57,6 +60,7 @@ _USAGE: dict[str, str] = {
     'plug': 'plug ID',
     'load': 'load ID NM',
     'voltage': 'voltage ID VOLTS',
+    'tick': 'tick ID MS',
     'get': 'get ID NAME|ADDRESS',
     'dump': 'dump ID',
     'stats': 'stats',
@@ -113,6 +117,10 @@ class ControlledBus(Protocol):
 
     def set_voltage(self, servo_id: int, volts: float) -> None:
         """Set the input voltage."""
+        ...
+
+    def set_tick(self, servo_id: int, tick_ms: int) -> None:
+        """Set the Realtime Tick."""
         ...
 
 
@@ -197,6 +205,11 @@ def parse(line: str) -> Command:
             value = _parse_float(token, what)
             if value < 0.0:
                 raise ControlError(f'bad {what} {token!r}: expected >= 0')
+        elif kind == 'tick':
+            value = _parse_float(token, 'tick (ms)')
+            if value != int(value) or not 0 <= value <= MAX_TICK_MS:
+                raise ControlError(f'bad tick (ms) {token!r}: expected an integer '
+                                   f'0..{MAX_TICK_MS}')
         elif kind == 'kind':
             text = token.lower()
             if text not in ERROR_KINDS:
@@ -247,6 +260,10 @@ def execute(command: Command, bus: ControlledBus,
             assert command.value is not None
             bus.set_voltage(sid, command.value)
             return f'ok voltage {sid} {command.value:g}'
+        elif name == 'tick':
+            assert command.value is not None
+            bus.set_tick(sid, int(command.value))
+            return f'ok tick {sid} {int(command.value)}'
         elif name == 'get':
             register = _register_of(command, bus, sid)
             return f'ok get {sid} {register}={bus.read_register(sid, register)}'

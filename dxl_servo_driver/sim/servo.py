@@ -43,6 +43,7 @@ from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
 
 CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
+TICK_PERIOD_MS = 32768   # the Realtime Tick counts 0..32767 ms, then wraps
 _POSITION_MODES = frozenset({3, 4, 5})
 _ADDR_LEN = struct.Struct('<HH')
 _U16 = struct.Struct('<H')
@@ -143,7 +144,7 @@ class SimServo:
             # The Realtime Tick is the servo's clock, not physics: current even while the
             # physics may lag (a driver dates samples by it).
             tick_ms = int((now_s - self._power_on_s) * 1000.0)
-            memory.set('realtime_tick', max(tick_ms, 0) % 32768)
+            memory.set('realtime_tick', max(tick_ms, 0) % TICK_PERIOD_MS)
         if dt_s < lag_s:
             return
         if dt_s <= 0.0:
@@ -156,6 +157,19 @@ class SimServo:
         if dt_s >= CONTROL_PERIOD_S:
             self._last_s = now_s
             self.latch_errors(self.dynamics.advance(dt_s, memory))
+
+    def set_tick(self, now_s: float, tick_ms: int) -> None:
+        """
+        Make the Realtime Tick read tick_ms at now_s and count on from there.
+
+        As if powered on that long ago, modulo the wrap: a servo that has run for hours, or a
+        tick about to wrap.
+        """
+        if not 0 <= tick_ms < TICK_PERIOD_MS:
+            raise ValueError(f'a Realtime Tick is 0..{TICK_PERIOD_MS - 1} ms, got {tick_ms}')
+        self.advance(now_s)
+        self._power_on_s = now_s - tick_ms / 1000.0
+        self.memory.set('realtime_tick', tick_ms)
 
     def latch_errors(self, bits: int) -> None:
         """Latch hardware error bits; drop torque for those set in `shutdown`."""
