@@ -119,7 +119,7 @@ def test_the_wrap_itself_is_no_age(tick_ms: int) -> None:
 
 
 def test_configure_straight_after_cleanup_on_the_simulated_bus() -> None:
-    """The path of `make run`: port sim builds a new simulator (ticks from 0) at every configure."""
+    """The path of make run: port sim builds a new simulator (ticks from 0) at each configure."""
     joints = {f'j{i}': {'id': i, 'operating_mode': 'position'} for i in IDS}
     with NodeHarness(sim_params(joints)) as h:
         h.joint_states.wait(lambda m: len(m.name) == len(IDS))
