@@ -1,17 +1,31 @@
 """
 Step-wise activities that must not stall the bus cycle: restoring a servo, rebooting it.
 
-An activity is a generator that does at most one bus transaction between two yields (or waits,
-yielding without one). The cycle runs a few steps of each in the time it has left, so a servo
-being restored never holds up the others for more than a cycle's budget; a synchronous caller
-(configure, a service in a timer-driven node) runs the same generator to its end at once.
+An activity is a generator that does at most one bus transaction between two yields. The cycle
+runs a few steps of each in the time it has left, so a servo being restored never holds up the
+others for more than a cycle's budget; a synchronous caller (configure, a service in a
+timer-driven node) runs the same generator to its end at once.
+
+A step that has nothing to do before some time (a servo booting) yields that time, on the
+runner's clock: it is left alone until then, never stepped in a loop. The cycle holds the bus
+while it steps tasks, so a task spinning on the clock would keep every request from the bus.
 """
 
 import threading
 import time
 from typing import Callable, Dict, Generator, Iterable, List, Optional
 
-Steps = Generator[None, None, None]
+# What a step yields: None (one transaction done, or none), or the time it wants to wake at.
+Steps = Generator[Optional[float], None, None]
+
+
+def wait(until_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+    """Sleep until clock() reaches until_s (in short sleeps: the clock may be a test's)."""
+    while True:
+        left_s = until_s - clock()
+        if left_s <= 0.0:
+            return
+        time.sleep(min(left_s, 0.01))
 
 
 class Task:
@@ -35,7 +49,7 @@ class Task:
     def step(self) -> bool:
         """Run one step; return True when the task has ended. Exceptions end it and propagate."""
         try:
-            next(self._steps)
+            wake_s = next(self._steps)
         except StopIteration:
             self.finished.set()
             return True
@@ -43,12 +57,14 @@ class Task:
             self.error = exc
             self.finished.set()
             raise
+        if wake_s is not None:
+            self.not_before_s = wake_s
         return False
 
-    def run_to_end(self) -> None:
-        """Run every remaining step now (a synchronous caller)."""
+    def run_to_end(self, clock: Callable[[], float] = time.monotonic) -> None:
+        """Run every remaining step now (a synchronous caller), sleeping through its waits."""
         while not self.step():
-            pass
+            wait(self.not_before_s, clock)
 
     def cancel(self, reason: str) -> None:
         """End the task without running its remaining steps."""

@@ -102,8 +102,8 @@ class Recovery:
         deadline = self._clock() + BOOT_TIMEOUT_S
         next_ping = self._clock() + BOOT_POLL_S
         while True:
-            while self._clock() < next_ping:
-                yield   # booting: nothing to ask yet
+            if self._clock() < next_ping:
+                yield next_ping   # booting: nothing to ask before then
             try:
                 link.ping_once(servo)
                 break
@@ -199,7 +199,7 @@ class Recovery:
         for task in tasks:
             if not task.done:
                 try:
-                    task.run_to_end()
+                    task.run_to_end(self._clock)
                 except Exception:  # noqa: B902 - reported from task.error by the caller
                     pass
                 self._tasks.cancel_all('done', [task.joint])

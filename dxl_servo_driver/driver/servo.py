@@ -12,6 +12,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
+from dxl_servo_driver import tasks
 from dxl_servo_driver.config import JointConfig
 from dxl_servo_driver.errors import Refused
 from dxl_servo_driver.model import GoalSlot, StateBlock, TickClock
@@ -198,6 +199,7 @@ def clamp_position(servo: Servo, raw: int) -> int:
 
 
 def run(steps: Steps) -> None:
-    """Run an activity's steps to the end, at once (a synchronous caller)."""
-    for _ in steps:
-        pass
+    """Run an activity's steps to the end, at once (a synchronous caller; waits are slept)."""
+    for wake_s in steps:
+        if wake_s is not None:
+            tasks.wait(wake_s)

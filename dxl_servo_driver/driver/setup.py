@@ -246,7 +246,7 @@ class Setup:
             link.write(servo, name, value)
             yield
 
-    def _into_one_turn(self, servo: Servo, present: int) -> Generator[None, None, int]:
+    def _into_one_turn(self, servo: Servo, present: int) -> Generator[Optional[float], None, int]:
         """Bring Present Position within one turn before torque on; return its new value."""
         homing = servo.homing_offset
         if homing <= present < homing + servo.units.pulses_per_rev:
