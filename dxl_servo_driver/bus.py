@@ -444,12 +444,26 @@ class Bus:
         return pending
 
     def abort(self, pending: Optional[SyncRead]) -> None:
-        """Give up a sync read begun and not ended (idempotent); its replies are then stale."""
+        """
+        Give up a sync read begun and not ended (idempotent), and wait its replies out.
+
+        Whatever arrives until the read's deadline is its answer: it is read and dropped here,
+        so no later transaction (the next activation's first read, a torque-off) can take it
+        for its own. Later stragglers still find the bus suspicious (dirty).
+        """
         if pending is None or pending.done:
             return
         pending.done = True
         self.mark_dirty()
-        self.lock.release()
+        try:
+            while time.monotonic() < pending.deadline_s:
+                dropped = self._read(STATUS_OVERHEAD * len(pending.ids) + 4096,
+                                     pending.deadline_s)
+                self.counters.flushed_bytes += len(dropped)
+        except PortError:
+            pass   # a lost port holds nothing to wait for; its next user finds it lost
+        finally:
+            self.lock.release()
 
     def end_sync_read(self, pending: SyncRead) -> SyncResult:
         """Collect the replies of a sync read begun by begin_sync_read()."""

@@ -226,6 +226,11 @@ class DriverNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Goal = present, torque on, start the cycle."""
+        if self._runner.running:
+            # Never a second cycle beside one that did not stop (it would share the bus).
+            self.get_logger().error('activate refused: the bus cycle of the last activation '
+                                    'has not ended yet')
+            return TransitionCallbackReturn.FAILURE
         try:
             self.manager.activate()
             bus_cycle_s = self.manager.bus_budget().cycle_time_s

@@ -11,10 +11,14 @@ after itself when the node cannot start. Client alone drives a driver in another
 import itertools
 import threading
 import time
-from typing import Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, TypeVar
+from typing import (
+    Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, Tuple, TypeVar)
 
+from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver.node import DriverNode, NODE_NAME, StartupFailure
+from dxl_servo_driver.sim.port import SimPortHandler
+from dxl_servo_driver.transports import open_transport
 from dxl_servo_driver_msgs.msg import JointCommand, ServoStateArray
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)
@@ -312,3 +316,35 @@ def startup_failure(params: Mapping[str, Any]) -> StartupFailure:
             node.shutdown()
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
+                   prepare: Optional[Callable[[Any], None]] = None,
+                   wrap: Optional[Callable[[Any], Any]] = None) -> NodeHarness:
+    """
+    Start a `port: sim` node whose port goes through a FaultyPort (or wrap(port)).
+
+    The simulated servos are made once; every configure opens a new port on them (after a
+    cleanup closed the last one), as a node reopens its device.
+    """
+    h = NodeHarness(params, start=False)
+    try:
+        assert h.node is not None
+        made: Dict[str, Any] = {}
+
+        def factory(config: Any) -> Tuple[Any, Any]:
+            if 'sim' not in made:
+                raw, made['sim'] = open_transport(config)
+                if prepare is not None:
+                    prepare(made['sim'])
+            else:
+                raw = SimPortHandler(made['sim'], 'sim', config.baud_rate)
+            port = FaultyPort(raw, faults, seed)
+            return (wrap(port) if wrap is not None else port), made['sim']
+
+        h.node.manager._port_factory = factory
+        h.node.start()
+    except BaseException:
+        h.close()
+        raise
+    return h

@@ -341,9 +341,14 @@ def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> No
     for servo_id in IDS:
         bus.write(servo_id, BLOCK.indirect_map_address(), BLOCK.indirect_map_bytes())
 
+    earlier = protocol.encode_instruction(
+        protocol.BROADCAST_ID,
+        protocol.Instruction.FAST_SYNC_READ if fast else protocol.Instruction.SYNC_READ,
+        struct.pack('<HH', BLOCK.read_address, BLOCK.tagged_size) + bytes(IDS))
+
     def behind(linger: bool) -> int:
-        """Put an answer in flight, give it up, read again; return the bytes left behind."""
-        bus.abort(bus.begin_sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast))
+        """Put an earlier request's answer in flight, read again; return the bytes left behind."""
+        port.write(earlier)   # a request whose answer is on its way (a stuck, late adapter)
         pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast, linger)
         result = bus.end_sync_read(pending)
         assert all(isinstance(result.data[servo_id], bytes) for servo_id in IDS)

@@ -15,14 +15,13 @@ import math
 import random
 import threading
 import time
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
-from adapter_faults import Faults, FaultyPort
+from adapter_faults import Faults
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from dxl_servo_driver.node import StartupFailure
-from dxl_servo_driver.transports import open_transport as open_port
 from lifecycle_msgs.msg import Transition
-from node_harness import NodeHarness, sim_params, startup_failure
+from node_harness import faulty_harness, NodeHarness, sim_params, startup_failure
 import pytest
 from rcl_interfaces.msg import Log
 from sensor_msgs.msg import JointState
@@ -55,33 +54,6 @@ def bus_values(array: DiagnosticArray) -> Dict[str, str]:
 def position_of(msg: JointState, name: str) -> Optional[float]:
     names = list(msg.name)
     return msg.position[names.index(name)] if name in names else None
-
-
-def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
-                   prepare: Optional[Callable[[Any], None]] = None,
-                   wrap: Optional[Callable[[Any], Any]] = None) -> NodeHarness:
-    """Start a `port: sim` node whose port goes through a FaultyPort (or wrap(port))."""
-    h = NodeHarness(params, start=False)
-    try:
-        assert h.node is not None
-        made: Dict[str, Any] = {}
-
-        def factory(config: Any) -> Tuple[Any, Any]:
-            if 'port' not in made:
-                raw, sim = open_port(config)
-                if prepare is not None:
-                    prepare(sim)
-                port = FaultyPort(raw, faults, seed)
-                made['port'] = wrap(port) if wrap is not None else port
-                made['sim'] = sim
-            return made['port'], made['sim']
-
-        h.node.manager._port_factory = factory
-        h.node.start()
-    except BaseException:
-        h.close()
-        raise
-    return h
 
 
 class Truth:

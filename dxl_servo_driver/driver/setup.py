@@ -9,7 +9,7 @@ Present Position are kept in the joint's turn offset. The long activities are st
 (generators, one transaction between two yields) that tasks.py or a synchronous caller runs.
 """
 
-from typing import Callable, Dict, Generator, List, Optional
+from typing import Any, Callable, Dict, Generator, List, Optional
 
 from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
@@ -246,7 +246,7 @@ class Setup:
             link.write(servo, name, value)
             yield
 
-    def _into_one_turn(self, servo: Servo, present: int) -> Generator[Optional[float], None, int]:
+    def _into_one_turn(self, servo: Servo, present: int) -> Generator[Any, None, int]:
         """Bring Present Position within one turn before torque on; return its new value."""
         homing = servo.homing_offset
         if homing <= present < homing + servo.units.pulses_per_rev:

@@ -4,12 +4,17 @@ The bus cycle runner: read, write goals, step recovery, publish, pace; until sto
 It runs in its own thread at loop_rate (or, with cycle_driver timer, from an executor timer),
 so it never waits on the executor. Any exception is logged, counted and survived; a
 BaseException ends the cycle and is kept in `failure` for the node to go to its error state.
+
+There is never more than one cycle thread: start() refuses while the thread of an earlier
+start is alive (a stop that timed out keeps it on record, it is never forgotten), and each
+thread runs only while its generation is the runner's latest, so one left behind ends at its
+next cycle instead of reading beside the new one. `cycle_threads` counts the live ones.
 """
 
 import threading
 import time
 import traceback
-from typing import Any, Callable, Optional, Protocol
+from typing import Any, Callable, List, Optional, Protocol
 
 from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.ros.diagnostics import CycleFacts
@@ -49,6 +54,8 @@ class CycleRunner:
         self._stop = threading.Event()
         self._wake = threading.Event()     # cuts the cycle's sleep short (stop, new loop_rate)
         self.thread: Optional[threading.Thread] = None
+        self._generation = 0
+        self._started: List[threading.Thread] = []   # every cycle thread not known ended
         self._timer: Any = None
         self.rate = RateMeter()
         self._shortfall = Shortfall()
@@ -63,8 +70,22 @@ class CycleRunner:
         self.failure: Optional[BaseException] = None
 
     # control --------------------------------------------------------------------------------
+    @property
+    def cycle_threads(self) -> int:
+        """Return how many cycle threads are alive (0 stopped, 1 running; never more)."""
+        self._started = [thread for thread in self._started if thread.is_alive()]
+        return len(self._started)
+
+    @property
+    def running(self) -> bool:
+        """Return whether a cycle runs, or the thread of a stopped one has not ended yet."""
+        return self._timer is not None or self.cycle_threads > 0
+
     def start(self, driver: str, bus_cycle_s: float) -> None:
         """Start cycling: in a thread (`thread`) or from an executor timer (`timer`)."""
+        if self.running:
+            raise RuntimeError('the bus cycle of the last activation has not ended yet')
+        self._generation += 1
         self.bus_cycle_s = bus_cycle_s
         self._stop.clear()
         self._wake.clear()
@@ -76,11 +97,14 @@ class CycleRunner:
         if driver == 'timer':
             self._timer = self._host.create_timer(self.period_s, self._timer_cycle)
         else:
-            self.thread = threading.Thread(target=self._run, name='dxl_bus_cycle', daemon=True)
+            self.thread = threading.Thread(target=self._run, args=(self._generation,),
+                                           name='dxl_bus_cycle', daemon=True)
+            self._started.append(self.thread)
             self.thread.start()
 
-    def stop(self) -> None:
+    def stop(self, timeout_s: float = 5.0) -> None:
         """Stop cycling and wait for the thread (never from the thread itself)."""
+        self._generation += 1   # a thread that misses the stop event ends at its next cycle
         self._stop.set()
         self._wake.set()
         if self._timer is not None:
@@ -88,9 +112,11 @@ class CycleRunner:
             self._timer = None
         if self.thread is not None:
             if self.thread is not threading.current_thread():
-                self.thread.join(timeout=5.0)
+                self.thread.join(timeout=timeout_s)
                 if self.thread.is_alive():
-                    self._host.get_logger().error('the bus cycle did not stop within 5 s')
+                    # Kept in _started: no activation starts another beside it.
+                    self._host.get_logger().error(
+                        f'the bus cycle did not stop within {timeout_s:g} s')
             self.thread = None
 
     def set_rate(self, hz: float) -> None:
@@ -106,13 +132,14 @@ class CycleRunner:
     def facts(self) -> CycleFacts:
         """Return what the diagnostics say of the cycle."""
         return CycleFacts(self.rate.rate_hz, 1.0 / self.period_s,
-                          time.monotonic() - self.last_cycle_s, self.cycle_errors, self.failure)
+                          time.monotonic() - self.last_cycle_s, self.cycle_errors, self.failure,
+                          self.cycle_threads)
 
     # the cycle ------------------------------------------------------------------------------
-    def _run(self) -> None:
+    def _run(self, generation: int) -> None:
         """Run the bus cycle in its thread; if it ever fails for good, say so and keep why."""
         try:
-            self._loop()
+            self._loop(generation)
         except BaseException as exc:  # noqa: B902 - never a silent death of the cycle
             self.failure = exc
             self._host.manager.abort_read()
@@ -120,7 +147,7 @@ class CycleRunner:
                 f'the bus cycle stopped: {exc!r}; going to the error state (torque off)\n'
                 + ''.join(traceback.format_exception(exc)))
 
-    def _loop(self) -> None:
+    def _loop(self, generation: int) -> None:
         """
         Read, write goals, step recovery, publish, pace; until stopped.
 
@@ -132,7 +159,7 @@ class CycleRunner:
         next_s = time.monotonic()
         reading = False
         pipelined = False
-        while not self._stop.is_set():
+        while not self._stop.is_set() and generation == self._generation:
             try:
                 if not pipelined:
                     reading = self._begin()

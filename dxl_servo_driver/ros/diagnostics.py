@@ -26,6 +26,7 @@ class CycleFacts:
     stalled_s: float
     cycle_errors: int
     failure: Optional[BaseException]
+    threads: int   # live cycle threads: 1 while active, 0 otherwise, never more
 
 
 def _values(pairs: Mapping[str, Any]) -> List[KeyValue]:
@@ -86,6 +87,7 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         'read_mode': manager.read_mode_in_use,
         'goal_slots': manager.goal_slots_in_use,
         'cycles': manager.cycles, 'cycle_errors': facts.cycle_errors,
+        'cycle_threads': facts.threads,
         'read_failures': manager.read_failures,
         'timeouts': counters.timeouts if counters else 0,
         'corrupt_replies': counters.corrupt if counters else 0,
