@@ -55,6 +55,9 @@ ERROR_TEXT: Dict[int, str] = {
     ErrorCode.DATA_LIMIT: 'data limit error (value beyond the limit register)',
     ErrorCode.ACCESS: 'access error (read-only register, or EEPROM while torque is on)',
 }
+# An echo once learned is expected until this many answered transactions in a row came without
+# it: one odd request (an adapter that swallowed its echo) does not make the next ones wait.
+ECHO_MISSES_TO_FORGET = 3
 # The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
 BROADCAST_PING_PER_ID_S = 0.003
 
@@ -70,6 +73,7 @@ class Counters:
     stale: int = 0             # replies discarded: wrong id, length, order, or a duplicate
     echoes: int = 0            # our own requests seen coming back (local echo)
     flushed_bytes: int = 0     # bytes waiting before a request (late replies, noise)
+    deadline_waits: int = 0    # reads that ended at their deadline short of what they asked
 
 
 @dataclass
@@ -123,6 +127,7 @@ class Bus:
         self.lock = threading.RLock()
         self.counters = Counters()
         self.echo = False             # learned: the adapter echoes what we send
+        self._echo_misses = 0
         self._dirty_until = 0.0
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...], bool], bytes] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
@@ -152,6 +157,20 @@ class Bus:
     def dirty(self) -> bool:
         """Return True while the bus is suspicious (an anomaly happened lately)."""
         return time.monotonic() < self._dirty_until
+
+    def _echo_seen(self) -> None:
+        """Our own request came back: the adapter echoes (expected in front of every answer)."""
+        self.echo = True
+        self._echo_misses = 0
+        self.counters.echoes += 1
+
+    def _echo_missing(self) -> None:
+        """Note an answered transaction that came without the echo it was expected to carry."""
+        if self.echo:
+            self._echo_misses += 1
+            if self._echo_misses >= ECHO_MISSES_TO_FORGET:
+                self.echo = False
+                self._echo_misses = 0
 
     def mark_dirty(self) -> None:
         """Be suspicious of replies for a while (an anomaly happened)."""
@@ -186,11 +205,18 @@ class Bus:
         self.counters.tx_packets += 1
         return before, time.monotonic()
 
-    def _read(self, size: int, deadline_s: float) -> bytes:
+    def _read(self, size: int, deadline_s: float, to_deadline: bool = False) -> bytes:
+        """Read up to size bytes by deadline_s; to_deadline: waiting it out is the point."""
+        size = max(1, size)
         try:
-            return self.port.read(max(1, size), max(0.0, deadline_s - time.monotonic()))
+            data = self.port.read(size, max(0.0, deadline_s - time.monotonic()))
         except OSError as exc:
             raise _port_lost(exc) from None
+        if len(data) < size and not to_deadline:
+            # What makes a cycle slow: a wait to the deadline (a missing reply, or asking for
+            # more than is coming).
+            self.counters.deadline_waits += 1
+        return data
 
     def transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
                  what: str) -> bytes:
@@ -204,8 +230,13 @@ class Bus:
         return self._transact(servo_id, instruction, params, reply_params, what, None)[0]
 
     def _transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
-                  what: str, linger: Optional[bool]) -> Tuple[bytes, float]:
-        """Return (reply parameters, time the request went out); linger None: if dirty."""
+                  what: str, linger: Optional[bool], probe: bool = False) -> Tuple[bytes, float]:
+        """
+        Return (reply parameters, time the request went out); linger None: if dirty.
+
+        With probe, silence is an answer too (a servo booting, or not there): a missing reply
+        alone does not make the bus suspicious. A late one is still refused by its length.
+        """
         packet = encode_instruction(servo_id, instruction, params)
         reply_size = STATUS_OVERHEAD + reply_params
         with self.lock:
@@ -243,17 +274,23 @@ class Bus:
                         stale = True
                 if final or (found is not None and not linger):
                     break
-                # Dirty bus: read on to the deadline, a later matching reply replaces this one.
-                want = len(buffer) + reply_size
-            if echoed != self.echo and (echoed or found is not None):
-                self.echo = echoed
+                if linger:
+                    # Dirty bus: read on to the deadline, a later matching reply replaces this.
+                    want = len(buffer) + reply_size
+                else:
+                    # No more than the reply still lacks (the bytes from pos on are its start):
+                    # asking for more would wait for the deadline.
+                    want = len(buffer) + max(1, reply_size - (len(buffer) - pos))
             if echoed:
-                self.counters.echoes += 1
+                self._echo_seen()
+            elif found is not None:
+                self._echo_missing()
             if stale or corrupt or pos < len(buffer):
                 self.counters.stale += int(stale)
                 self.mark_dirty()
             if found is None:
-                self.mark_dirty()
+                if not probe or stale or corrupt:
+                    self.mark_dirty()
                 if corrupt:
                     self.counters.corrupt += 1
                     raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
@@ -281,9 +318,15 @@ class Bus:
             return 'echo' if frame.raw == packet else 'noise'
         return 'status' if frame.servo_id == servo_id else 'other'
 
-    def ping(self, servo_id: int) -> int:
-        """Return the model number of the servo; raise when it does not answer."""
-        data = self.transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping')
+    def ping(self, servo_id: int, probe: bool = False) -> int:
+        """
+        Return the model number of the servo; raise when it does not answer.
+
+        probe: its silence is expected now and then (a booting servo, a scan), so it does not
+        make the bus suspicious of the transactions that follow.
+        """
+        data = self._transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping', None,
+                              probe)[0]
         return data[0] | (data[1] << 8)
 
     def broadcast_ping(self) -> Dict[int, int]:
@@ -298,7 +341,7 @@ class Bus:
             buffer = bytearray()
             pos = 0
             while True:
-                buffer += self._read(reply_size, deadline)
+                buffer += self._read(reply_size, deadline, to_deadline=True)
                 final = time.monotonic() >= deadline
                 frames, pos = scan_frames(buffer, pos, max_length=32, final=final)
                 for frame in frames:
@@ -307,7 +350,7 @@ class Bus:
                         if len(data) == PING_REPLY_PARAMS:
                             found[frame.servo_id] = data[0] | (data[1] << 8)
                     elif frame.raw == packet:
-                        self.echo = True
+                        self._echo_seen()
                 if final:
                     break
         return found
@@ -458,7 +501,7 @@ class Bus:
         try:
             while time.monotonic() < pending.deadline_s:
                 dropped = self._read(STATUS_OVERHEAD * len(pending.ids) + 4096,
-                                     pending.deadline_s)
+                                     pending.deadline_s, to_deadline=True)
                 self.counters.flushed_bytes += len(dropped)
         except PortError:
             pass   # a lost port holds nothing to wait for; its next user finds it lost
@@ -481,19 +524,23 @@ class Bus:
         reply_size = STATUS_OVERHEAD + length
         expected = fast_sync_size(length, len(ids)) if pending.fast else reply_size * len(ids)
         echo_size = len(pending.packet) if self.echo else 0
+        echoes = self.counters.echoes
         buffer = self._read(echo_size + expected, pending.deadline_s)
-        if echo_size:
-            if buffer[:echo_size] == pending.packet:
-                buffer = buffer[echo_size:]
-                self.counters.echoes += 1
-            else:
-                self.echo = False
+        if echo_size and buffer[:echo_size] == pending.packet:
+            buffer = buffer[echo_size:]
+            self._echo_seen()
         if pending.fast:
-            return self._collect_fast(pending, buffer)
-        results = None if pending.linger else self._parse_sync_fast(buffer, ids, length)
-        if results is not None:
-            return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
-        return self._collect_slow(pending, bytearray(buffer))
+            result = self._collect_fast(pending, buffer)
+        else:
+            results = None if pending.linger else self._parse_sync_fast(buffer, ids, length)
+            if results is not None:
+                return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
+            # An echo not where expected (something came first) is found among the frames.
+            result = self._collect_slow(pending, bytearray(buffer))
+        if (echo_size and self.counters.echoes == echoes
+                and any(isinstance(data, bytes) for data in result.data.values())):
+            self._echo_missing()
+        return result
 
     def _parse_sync_fast(self, buffer: bytes, ids: Tuple[int, ...],
                          length: int) -> Optional[Dict[int, Union[bytes, CommError]]]:
@@ -555,8 +602,7 @@ class Bus:
             data += self._read(missing if missing > 0 else size, pending.deadline_s)
         if start > 0:
             if data.startswith(pending.packet):
-                self.echo = True   # learned: the adapter echoes (stripped from now on)
-                counters.echoes += 1
+                self._echo_seen()   # learned: the adapter echoes (stripped from now on)
             else:
                 counters.stale += 1   # something came before the answer
         self.mark_dirty()   # a missing part may still come, late
@@ -634,8 +680,7 @@ class Bus:
                     continue
                 if frame.instruction != Instruction.STATUS:
                     if frame.raw == pending.packet:
-                        self.echo = True
-                        counters.echoes += 1
+                        self._echo_seen()
                     else:
                         anomalies += 1
                     continue
@@ -655,7 +700,9 @@ class Bus:
             if final or (not anomalies and len(entries) == len(ids) and not pending.linger):
                 break
             missing = len(ids) - len(entries)
-            buffer += self._read(max(missing, 1) * reply_size, pending.deadline_s)
+            # What the missing replies still lack (the bytes from pos on start one of them).
+            buffer += self._read(max(missing * reply_size - (len(buffer) - pos), 1),
+                                 pending.deadline_s)
         if anomalies or pos < len(buffer) or len(entries) < len(ids):
             self.mark_dirty()   # a missing reply may still come, late
         results: Dict[int, Union[bytes, CommError]] = {}
@@ -697,8 +744,10 @@ class Bus:
                 self._send(packet)
                 echo = self._read(len(packet), time.monotonic() + self.reply_timeout_s(
                     0, 0, len(packet)))
-                if echo != packet:
-                    self.echo = False
+                if echo == packet:
+                    self._echo_seen()
+                else:
+                    self._echo_missing()   # what came of it, if anything, the next flush drops
             else:
                 try:
                     self.port.write(packet)

@@ -178,7 +178,7 @@ def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str]) -> Dict[int, in
     found: Dict[int, int] = {}
     for servo_id in ids:
         try:
-            found[servo_id] = bus.ping(servo_id)
+            found[servo_id] = bus.ping(servo_id, probe=True)
         except CorruptReply:
             warnings.append(f'id {servo_id} at {bus.baud_bps} bps: garbled replies (two servos '
                             'with the same id, or a noisy line?)')

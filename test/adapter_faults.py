@@ -66,6 +66,8 @@ class Faults:
     """
 
     echo: bool = False                                 # host bytes come back to the host first
+    echo_chunk: int = 0                                # echo in pieces of this size (0: whole)
+    echo_gap_ms: float = 0.0                           # between two pieces of the echo
     freeze_probability: float = 0.0                    # a freeze starts at a reply
     freeze_ms: tuple[float, float] = (20.0, 100.0)     # how long a random freeze lasts
     late_probability: float = 0.0                      # a reply schedules a late earlier reply
@@ -86,6 +88,9 @@ class Faults:
         _check_range('late_ms', self.late_ms)
         _check_range('noise_bytes', self.noise_bytes, 1)
         _check_range('delay_ms', self.delay_ms)
+        if self.echo_chunk < 0 or not self.echo_gap_ms >= 0.0:
+            raise ValueError(f'echo_chunk and echo_gap_ms must be >= 0, got {self.echo_chunk}, '
+                             f'{self.echo_gap_ms}')
 
 
 @dataclasses.dataclass
@@ -204,7 +209,13 @@ class FaultEngine:
         with self.cond:
             if self._faults.echo and data:
                 self.stats.echoed_bytes += len(data)
-                self._stream(bytes(data), now_s, jitter=False)
+                # In pieces, as an adapter hands them over while the bytes leave it; what the
+                # servos answer comes after the last piece (the stream keeps its order).
+                step = self._faults.echo_chunk or len(data)
+                for number, start in enumerate(range(0, len(data), step)):
+                    self._stream(bytes(data[start:start + step]),
+                                 now_s + number * self._faults.echo_gap_ms / 1000.0,
+                                 jitter=False)
                 self._changed()
 
     def servo_bytes(self, data: bytes, now_s: float) -> None:

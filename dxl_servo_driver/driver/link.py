@@ -118,7 +118,7 @@ class Link:
 
     def ping_once(self, servo: Servo) -> None:
         """Ping once: the caller decides what a lost reply means (a booting servo)."""
-        self.io().ping(servo.servo_id)
+        self.io().ping(servo.servo_id, probe=True)
 
     def reboot(self, servo: Servo) -> None:
         """Send REBOOT."""

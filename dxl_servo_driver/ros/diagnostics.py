@@ -95,6 +95,7 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         'discarded_replies': counters.stale if counters else 0,
         'stale_samples_refused': manager.stale_refused,
         'flushed_bytes': counters.flushed_bytes if counters else 0,
+        'deadline_waits': counters.deadline_waits if counters else 0,
         'adapter_echo': bus.echo if bus is not None else False,
         'retries': manager.retries, 'retry_successes': manager.retry_successes,
         'recoveries': manager.recoveries, 'port_lost': manager.port_lost,
