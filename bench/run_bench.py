@@ -261,16 +261,17 @@ def wire_bytes(variant: str, n: int, rate_hz: float, writes_per_cycle: float) ->
     if variant == 'sdk_baseline':
         return model.sync_read_bytes(n, SDK_READ_BYTES) + model.sync_write_bytes(n, WRITE_BYTES)
     block = model.BLOCK_SHAPE
-    if variant in FAST_VARIANTS:   # a fast read always carries the tick (the node's cycle)
+    # Every read of the node's cycle carries the tick (each sample is dated).
+    if variant in FAST_VARIANTS:
         read = model.fast_sync_read_bytes(n, block.tagged_size)
     else:
-        read = model.sync_read_bytes(n, block.motion_size)
+        read = model.sync_read_bytes(n, block.tagged_size)
     if variant in ('bus', 'bus_fast'):
         return read + model.sync_write_bytes(n, WRITE_BYTES)
     # The node reads the whole block HEALTH_RATE_HZ times a second and writes only when a
     # command arrived.
     full_share = min(1.0, HEALTH_RATE_HZ / rate_hz) if rate_hz else 0.0
-    extra = full_share * n * (block.size - block.motion_size)
+    extra = full_share * n * (block.size - block.tagged_size)
     return read + extra + writes_per_cycle * model.sync_write_bytes(n, WRITE_BYTES)
 
 
@@ -408,7 +409,7 @@ def two_buses(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             node.close()
         for bus in buses:
             bus.close()
-    limit = 1.0 / ((model.sync_read_bytes(n, model.BLOCK_SHAPE.motion_size)
+    limit = 1.0 / ((model.sync_read_bytes(n, model.BLOCK_SHAPE.tagged_size)
                     + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud)
     return [{'case': f'two buses, bus {index}', 'n': n, 'baud': baud,
              'alone_hz': round(statistics.mean(alone[index]), 1),
@@ -436,7 +437,7 @@ def adapter_latency(n: int, baud: int, latency_ms: float,
         if node is not None:
             node.close()
         bus.close()
-    bus_s = (model.sync_read_bytes(n, model.BLOCK_SHAPE.motion_size)
+    bus_s = (model.sync_read_bytes(n, model.BLOCK_SHAPE.tagged_size)
              + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud
     allowed = 1.0 / (bus_s + latency_ms / 1000.0)
     rate = statistics.mean(rates)
@@ -460,11 +461,11 @@ def crc_comparison(n: int = 12, rounds: int = 5, cycles: int = 2000) -> Dict[str
     """
     Time the CRC checks of one cycle's replies, compiled (fastcrc) against pure Python.
 
-    The N status packets of a sync read of the motion block, as the bus checks them; both
+    The N status packets of a sync read of the motion part and tick, as the bus checks them; both
     implementations in this process, interleaved round by round, the best round of each kept.
     """
     from dxl_servo_driver import protocol
-    replies = [protocol.encode_status(servo_id, 0, bytes(model.BLOCK_SHAPE.motion_size))[:-2]
+    replies = [protocol.encode_status(servo_id, 0, bytes(model.BLOCK_SHAPE.tagged_size))[:-2]
                for servo_id in range(1, n + 1)]
     timings: Dict[str, List[float]] = {'compiled': [], 'python': []}
     functions = {'compiled': protocol.crc16, 'python': protocol.crc16_python}

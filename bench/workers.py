@@ -63,10 +63,10 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     cycles = failures = 0
     wall0 = time.monotonic()
     cpu0 = time.process_time()
-    # As the node's cycle: a fast read always carries the Realtime Tick, which dates each
-    # sample (a stale one is a failure, and the next read lingers to get back in step).
-    length = block.tagged_size if fast else block.motion_size
-    decode = block.decode_tagged if fast else block.decode_motion
+    # As the node's cycle: every read carries the Realtime Tick, which dates each sample (a
+    # stale one is a failure, and the next read lingers to get back in step).
+    length = block.tagged_size
+    decode = block.decode_tagged
     tick = block.index['realtime_tick']
     clocks = {servo_id: model.TickClock() for servo_id in ids}
     linger = False
@@ -81,7 +81,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
                 failures += 1
                 continue
             values = decode(data)
-            if fast and not clocks[servo_id].check(values[tick], result.sent_s, received):
+            if not clocks[servo_id].check(values[tick], result.sent_s, received):
                 failures += 1
                 linger = True
         bus.sync_write(116, 4, goals)

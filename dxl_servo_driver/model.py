@@ -150,10 +150,10 @@ class BlockShape:
 
     The registers below are scattered over the table (64, 68, 70, 120..146); mapping them to
     consecutive indirect data bytes lets one sync read fetch all of them from every servo.
-    The block has three parts. The motion part (position, velocity, effort: the same 10 bytes
-    any control loop reads) is read every cycle. The Realtime Tick follows it: the cycle reads it
-    too (the tagged read) while the bus is suspicious, to date every sample (TickClock). The
-    health part after it (a canary, pwm, voltage, temperature, moving, errors, torque) comes
+    The block has three parts. The motion part (position, velocity, effort: the 10 bytes any
+    control loop reads) and the Realtime Tick after it (the tagged read, 12 bytes) are read every
+    cycle: the tick dates every sample, so a late reply never passes for the answer (TickClock).
+    The health part after it (a canary, pwm, voltage, temperature, moving, errors, torque) comes
     only when diagnostics or servo_states need it, by reading the whole block in that cycle's one
     sync read instead.
 
@@ -509,8 +509,8 @@ def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
     holds the replies once per cycle before the host sees them.
     """
     length = read_length
-    if length is None:   # what the cycle reads: the motion part, with the tick when fast
-        length = BLOCK_SHAPE.tagged_size if fast else BLOCK_SHAPE.motion_size
+    if length is None:   # what the cycle reads: the motion part and the tick
+        length = BLOCK_SHAPE.tagged_size
     read = (fast_sync_read_bytes if fast else sync_read_bytes)(n_servos, length)
     total = read + sync_write_bytes(n_servos, write_length)
     return BusBudget(

@@ -218,7 +218,7 @@ def test_one_sync_read_per_cycle_gives_the_simulator_state(active: Tuple[Rig, Ma
             assert state[name] == rig.reg(servo.servo_id, name), name
 
 
-def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
+def test_cycles_read_motion_and_tick_and_the_whole_block_when_due(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
@@ -227,7 +227,7 @@ def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
     for _ in range(3):
         manager.read_states()
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
-    assert lengths == [SEED_BLOCK.motion_size] * 3
+    assert lengths == [SEED_BLOCK.tagged_size] * 3   # every sample dated by its tick
     assert all(s.fresh for s in manager.order)
     # A hardware error raises the alert bit in every status: the next cycle reads it all.
     rig.sim.inject_error(2, 'overheat')
@@ -235,7 +235,7 @@ def test_cycles_read_the_motion_part_and_the_whole_block_when_due(
     manager.read_states()
     manager.read_states()
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
-    assert lengths == [SEED_BLOCK.motion_size, SEED_BLOCK.size]
+    assert lengths == [SEED_BLOCK.tagged_size, SEED_BLOCK.size]
     state = dict(zip(STATE_NAMES, manager.servos['wheel'].state))
     assert state['hardware_error_status'] == rig.reg(2, 'hardware_error_status') == 0x04
     manager.read_states(full=True)
@@ -600,16 +600,16 @@ def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
     run_cycles(manager, lambda: manager.servos['grip'].fresh, timeout_s=5.0, step_s=0.01)
 
 
-def test_a_restart_is_caught_by_a_motion_only_read(active: Tuple[Rig, Manager]) -> None:
+def test_a_restart_is_caught_by_a_cycle_read_of_motion_and_tick(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
     manager.read_states(full=True)
     rig.tap.packets.clear()
     rig.sim.powercycle(2)
     rig.wait_booted(2)
-    manager.read_states()                 # motion part only: reads all zeros from servo 2
+    manager.read_states()                 # motion and tick: all zeros from servo 2
     lengths = [p.params[2] for p in rig.tap.packets if p.instruction == Instruction.SYNC_READ]
-    assert lengths[0] == SEED_BLOCK.motion_size
+    assert lengths[0] == SEED_BLOCK.tagged_size
     assert manager.servos['wheel'].restarts == 1
     assert not manager.servos['wheel'].fresh        # nothing published from that read
     run_cycles(manager, no_tasks(manager), step_s=0.01)

@@ -34,7 +34,7 @@ _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
 SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
-_MOTION = BLOCK.motion_struct   # the motion part is laid out alike on every model
+_TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
 SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, data)
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
@@ -146,14 +146,11 @@ class Cycle:
             if full is None:
                 full = (stamp - self._last_full_s >= self.health_period_s
                         or self._need_full)
-            if full:
-                length = BLOCK.size   # each group's own block size (_group_length)
-            elif bus.dirty or self.fast:
-                # A fast reply has nothing but its ids to tie it to its request: the tick
-                # always dates it (a late copy arriving in its place is then refused).
-                length = BLOCK.tagged_size
-            else:
-                length = BLOCK.motion_size
+            # Every read carries the servo's Realtime Tick, which dates each sample: a reply
+            # has nothing but its id and length to tie it to its request, and an adapter that
+            # hands over an old reply late (in the place of one it lost) is caught by nothing
+            # else. The whole block (health too) every health_period_s.
+            length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
             block, ids = self._groups[0]
             pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
                                           self.fast, self._linger_next)
@@ -248,16 +245,26 @@ class Cycle:
     def _take_results(self, result: SyncResult, stamp: float, received: float) -> None:
         get = result.data.get
         alerts = result.alerts
-        motion_size = BLOCK.motion_size
-        unpack_motion = _MOTION.unpack
+        dated = result.dated
+        sent_s = result.sent_s
+        check = self._stale.check
+        tagged_size = BLOCK.tagged_size
+        unpack_tagged = _TAGGED.unpack
         for servo, servo_id in self._ids:
             data = get(servo_id)
             state = servo.state
-            if isinstance(data, bytes) and len(data) == motion_size and state is not None:
-                # The usual cycle: the motion part of a servo known to be well.
-                values = unpack_motion(data)
+            if isinstance(data, bytes) and len(data) == tagged_size and state is not None:
+                # The usual cycle: motion and tick of a servo known to be well, dated.
+                values = unpack_tagged(data)
                 if values[0] or values[1] or values[2]:   # all zeros: see below
-                    servo.state = values + state[BLOCK.MOTION_FIELDS:]
+                    when = dated.get(servo_id)
+                    if when is None:
+                        fresh = check(servo, values[IDX_TICK], sent_s, received)
+                    else:
+                        fresh = check(servo, values[IDX_TICK], when[0], when[1])
+                    if not fresh:
+                        continue
+                    servo.state = values + state[BLOCK.TAGGED_FIELDS:]
                     if alerts.get(servo_id) and not state[IDX_HW_ERROR]:
                         self._need_full = True   # a new hardware error: decode it next cycle
                     servo.fresh = True
@@ -282,18 +289,18 @@ class Cycle:
                 servo.fresh = False
                 self._restarted(servo)
                 continue
-            elif size != BLOCK.motion_size:
-                sent_s, received_s = result.dated.get(servo_id, (result.sent_s, received))
-                if not self._stale.check(servo, values[IDX_TICK], sent_s, received_s):
+            else:
+                when = dated.get(servo_id, (sent_s, received))
+                if not check(servo, values[IDX_TICK], when[0], when[1]):
                     continue
             if full:
                 servo.state = values
                 servo.health_time = stamp
             elif servo.state is not None:
-                servo.state = values[:BLOCK.MOTION_FIELDS] + servo.state[BLOCK.MOTION_FIELDS:]
+                servo.state = values[:BLOCK.TAGGED_FIELDS] + servo.state[BLOCK.TAGGED_FIELDS:]
             else:
                 # Motion is good; the health part is not known yet (health_time 0).
-                servo.state = values[:BLOCK.MOTION_FIELDS] + (0,) + _NO_HEALTH
+                servo.state = values[:BLOCK.TAGGED_FIELDS] + _NO_HEALTH
                 self._need_full = True
             if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:  # type: ignore
                 self._need_full = True   # a new hardware error: decode it next cycle
