@@ -600,7 +600,8 @@ def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
     run_cycles(manager, lambda: manager.servos['grip'].fresh, timeout_s=5.0, step_s=0.01)
 
 
-def test_a_restart_is_caught_by_a_cycle_read_of_motion_and_tick(active: Tuple[Rig, Manager]) -> None:
+def test_a_restart_is_caught_by_a_cycle_read_of_motion_and_tick(
+        active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
     manager.read_states(full=True)
