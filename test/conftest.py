@@ -3,6 +3,12 @@ Test-session set-up shared by every test, and the fixtures the process-level tes
 
 DDS is isolated before anything imports rclpy: a random ROS_DOMAIN_ID per test session and
 localhost-only discovery, so parallel runs on one machine never see each other's nodes.
+
+Hypothesis runs under the profile HYPOTHESIS_PROFILE names. `ci` (the default, make test):
+derandomized, the same examples every run, no example database, so a run on a fresh clone is
+the run on every machine. `fuzz` (make fuzz): at random, 20 times the examples, the failures it
+finds kept in .hypothesis-fuzz/ and tried first the next time. Tests give their budgets as
+multiples of the profile's max_examples and set nothing else.
 """
 
 import os
@@ -11,6 +17,8 @@ import random
 import tempfile
 from typing import Any, Iterator, List, TYPE_CHECKING
 
+from hypothesis import HealthCheck, settings
+from hypothesis.database import DirectoryBasedExampleDatabase
 from processes import fresh_domain_id, StartVirtualBus, VirtualBusProcess
 import pytest
 
@@ -22,6 +30,33 @@ if 'DXL_TEST_KEEP_DOMAIN' not in os.environ:
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
+
+# No deadline and no too_slow health check in either profile: both measure time, and time on a
+# loaded two-core machine is not a property of the code.
+settings.register_profile(
+    'ci', max_examples=100, derandomize=True, database=None, print_blob=True, deadline=None,
+    suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile(
+    'fuzz', max_examples=2000, derandomize=False, print_blob=True, deadline=None,
+    database=DirectoryBasedExampleDatabase(
+        str(pathlib.Path(__file__).resolve().parent.parent / '.hypothesis-fuzz')),
+    suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
+
+
+def pytest_collection_modifyitems(items: List[pytest.Item]) -> None:
+    """Refuse a Hypothesis test whose own settings override the profile's randomness."""
+    profile = settings.default
+    strays = []
+    for item in items:
+        own = getattr(getattr(item, 'obj', None), '_hypothesis_internal_use_settings', None)
+        if own is not None and (own.derandomize != profile.derandomize
+                                or own.database is not profile.database):
+            strays.append(item.nodeid)
+    if strays:
+        raise pytest.UsageError(
+            'Hypothesis tests that set derandomize or database themselves (give them budgets '
+            'only; test/conftest.py has the profiles): ' + ', '.join(strays))
 
 
 @pytest.fixture

@@ -9,6 +9,8 @@ from hypothesis import given, settings, strategies as st
 import pytest
 
 SDK = Protocol2PacketHandler()
+# The Hypothesis profile's budget (test/conftest.py): 100 examples in make test, 2000 in fuzz.
+EXAMPLES = settings.default.max_examples
 
 
 def sdk_crc(data: bytes) -> int:
@@ -56,20 +58,19 @@ def test_stuffed_packet_matches_sdk_stuffing() -> None:
 
 
 @given(st.binary(max_size=300))
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=2 * EXAMPLES)
 def test_crc_matches_sdk(data: bytes) -> None:
     assert crc16(data) == sdk_crc(data)
 
 
 @given(st.binary(max_size=100), st.binary(max_size=100))
-@settings(max_examples=100, deadline=None)
 def test_crc_continues(first: bytes, second: bytes) -> None:
     assert crc16(second, crc16(first)) == crc16(first + second)
     assert crc16(bytearray(second), crc16(first)) == crc16(first + second)
 
 
 @given(st.binary(max_size=300), st.integers(0, 0xFFFF))
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=2 * EXAMPLES)
 def test_the_compiled_crc_is_the_pure_one(data: bytes, start: int) -> None:
     # The hot path uses fastcrc when installed (requirements/dev.txt installs it).
     assert CRC_IMPLEMENTATION == 'fastcrc'
@@ -78,7 +79,7 @@ def test_the_compiled_crc_is_the_pure_one(data: bytes, start: int) -> None:
 
 
 @given(st.binary(max_size=200).map(lambda b: b.replace(b'\xfe', b'\xff\xff\xfd')))
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=2 * EXAMPLES)
 def test_stuff_round_trip(payload: bytes) -> None:
     stuffed = stuff(payload)
     assert unstuff(stuffed) == payload
@@ -88,7 +89,7 @@ def test_stuff_round_trip(payload: bytes) -> None:
 
 @given(st.integers(0, 0xFE), st.sampled_from(list(Instruction)),
        st.binary(max_size=120).map(lambda b: b.replace(b'\x07', b'\xff\xff\xfd')))
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=2 * EXAMPLES)
 def test_encode_decode_round_trip(servo_id: int, instruction: int, params: bytes) -> None:
     packet = encode_instruction(servo_id, instruction, params)
     assert crc16(packet[:-2]) == packet[-2] | packet[-1] << 8
@@ -103,7 +104,6 @@ def test_encode_decode_round_trip(servo_id: int, instruction: int, params: bytes
 
 
 @given(st.integers(0, 252), st.integers(0, 0xFF), st.binary(max_size=60))
-@settings(max_examples=100, deadline=None)
 def test_status_round_trip(servo_id: int, error: int, params: bytes) -> None:
     decoded = decode_packet(encode_status(servo_id, error, params))
     assert decoded == Packet(servo_id, Instruction.STATUS, params, error)

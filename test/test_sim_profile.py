@@ -12,6 +12,8 @@ from sim_rig import Rig
 velocities = st.integers(min_value=1, max_value=1023)
 accelerations = st.integers(min_value=1, max_value=32767)
 distances = st.integers(min_value=-1_000_000, max_value=1_000_000).filter(lambda d: d != 0)
+# The Hypothesis profile's budget (test/conftest.py): 100 examples in make test, 2000 in fuzz.
+EXAMPLES = settings.default.max_examples
 
 
 # ---------------------------------------------------------------------------- pure profiles
@@ -27,7 +29,7 @@ def test_selection_table_examples() -> None:
     assert travel_time_ms(150, 30, 500) == pytest.approx(128.0 * math.sqrt(500 / 30))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=3 * EXAMPLES)
 @given(velocities, accelerations, distances, st.integers(-5000, 5000))
 def test_plan_from_rest_matches_formulas(v_raw: int, a_raw: int, delta: int, start: int) -> None:
     profile = plan_position(float(start), 0.0, float(start + delta), v_raw, a_raw)
@@ -48,7 +50,7 @@ def test_plan_from_rest_matches_formulas(v_raw: int, a_raw: int, delta: int, sta
     assert last[0] == pytest.approx(start + delta, abs=1e-3 + 1e-9 * abs(delta))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=3 * EXAMPLES)
 @given(st.integers(1, 400), st.integers(1, 500), st.integers(-50_000, 50_000),
        st.floats(-2.0, 2.0))
 def test_override_keeps_velocity_continuous_and_ends_at_goal(
@@ -75,7 +77,7 @@ def test_override_keeps_velocity_continuous_and_ends_at_goal(
     assert profile.sample(profile.duration_ms) == (100.0 + delta, 0.0, 0.0)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=2 * EXAMPLES)
 @given(st.integers(-1023, 1023), st.integers(-1023, 1023), st.integers(1, 32767))
 def test_velocity_ramp_takes_t1(start: int, target: int, a_raw: int) -> None:
     value = float(start)

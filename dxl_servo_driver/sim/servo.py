@@ -36,20 +36,17 @@ errors.  Choices where the manual is silent (all documented here):
 import struct
 from typing import Callable, Protocol
 
-from dxl_servo_driver.models import Model
+from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.protocol import (
-    ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, Instruction, ParseEvent)
+    ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, fast_sync_size, Instruction,
+    MAX_PACKET_LENGTH, ParseEvent)
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
 
 CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
 TICK_PERIOD_MS = 32768   # the Realtime Tick counts 0..32767 ms, then wraps
-_POSITION_MODES = frozenset({3, 4, 5})
 _ADDR_LEN = struct.Struct('<HH')
 _U16 = struct.Struct('<H')
-# Note 1 of Operating Mode: a mode change resets these gains to their initial values.
-_MODE_RESET_GAINS = ('velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
-                     'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain')
 _KIND_PING, _KIND_READ, _KIND_OTHER = 0, 1, 2
 _READ_INSTRUCTIONS = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
                       Instruction.BULK_READ)
@@ -289,7 +286,7 @@ class SimServo:
             memory.set('profile_acceleration', 0)
             for goal, limit in memory.table.goals_from_limits:
                 memory.set(goal, memory.get(limit))
-            for name in _MODE_RESET_GAINS:
+            for name in modes.RESET_GAINS:
                 memory.set(name, memory.item(name).initial)
             dynamics.reinit_present_position(memory)
         if 'torque_enable' in names:
@@ -297,7 +294,7 @@ class SimServo:
             if torque != old_torque:
                 if torque:
                     dynamics.reinit_present_position(memory)
-                    if memory.get('operating_mode') in _POSITION_MODES:
+                    if memory.get('operating_mode') in modes.POSITION_NUMBERS:
                         # The dynamics holds the horn where it is at torque on; the register
                         # says so too, rather than showing a goal the servo is not heading for.
                         memory.set('goal_position', memory.get('present_position'))
@@ -402,6 +399,8 @@ class SimServo:
         Firmware older than the model's first with Fast Sync Read does not know the
         instruction: a broadcast unknown instruction is not answered. A read the table refuses
         answers its error code with zeros for data, so the parts after it keep their places.
+        A request whose one status packet could not be framed (longer than a packet can be:
+        the manual says nothing of it) is ignored, as malformed sync packets are.
         """
         memory = self.memory
         if not self.model.has_fast_sync_read(memory.get('firmware_version')):
@@ -409,6 +408,8 @@ class SimServo:
         if len(params) < 5 or my_id not in params[4:] or memory.raw[68] < 1:
             return None
         address, length = _ADDR_LEN.unpack_from(params)
+        if fast_sync_size(length, len(params) - 4) > MAX_PACKET_LENGTH:
+            return None
         try:
             data = memory.read(address, length)
             error = 0
