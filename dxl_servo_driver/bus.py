@@ -28,8 +28,8 @@ import threading
 import time
 from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.models import Item
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, fast_sync_head,
     fast_sync_size, Frame, HEADER, Instruction, MAX_ID, parse_fast_sync_status, scan_frames,
@@ -406,12 +406,12 @@ class Bus:
         self.transact(servo_id, Instruction.WRITE, struct.pack('<H', address) + bytes(data), 0,
                       f'write of {len(data)} bytes at {address}')
 
-    def read_item(self, servo_id: int, item: ct.Item) -> int:
+    def read_item(self, servo_id: int, item: Item) -> int:
         """Return one control-table item's value."""
         data = self.read(servo_id, item.address, item.size)
         return int.from_bytes(data, 'little', signed=item.signed)
 
-    def write_item(self, servo_id: int, item: ct.Item, value: int) -> None:
+    def write_item(self, servo_id: int, item: Item, value: int) -> None:
         """Write one control-table item."""
         self.write(servo_id, item.address, value.to_bytes(item.size, 'little', signed=item.signed))
 
@@ -791,14 +791,3 @@ def _port_lost(exc: BaseException) -> PortError:
     if isinstance(exc, PortError):
         return exc
     return PortError(f'port lost: {exc}; was the adapter unplugged?')
-
-
-def decode_values(item_list: List[ct.Item], data: bytes) -> List[int]:
-    """Return the values of consecutive items read as one block."""
-    values = []
-    offset = 0
-    for item in item_list:
-        values.append(int.from_bytes(data[offset:offset + item.size], 'little',
-                                     signed=item.signed))
-        offset += item.size
-    return values

@@ -8,18 +8,9 @@ mode. No bus, no ROS.
 import math
 from typing import Dict, List, Mapping, Sequence, Tuple
 
-__all__ = ['JointStateCommandError', 'split_joint_state']
+from dxl_servo_driver.models.modes import BY_NAME as MODES
 
-# For each mode, the arrays it takes and the goal kind each becomes, in order of preference.
-MODE_SOURCES: Dict[str, Tuple[Tuple[str, str], ...]] = {
-    'position': (('position', 'position'),),
-    'extended_position': (('position', 'position'),),
-    # The effort of a current-based position joint is its current limit (a gentle grip).
-    'current_based_position': (('position', 'position'), ('effort', 'current')),
-    'velocity': (('velocity', 'velocity'),),
-    'current': (('effort', 'current'),),
-    'pwm': (),
-}
+__all__ = ['JointStateCommandError', 'split_joint_state']
 
 
 class JointStateCommandError(ValueError):
@@ -55,7 +46,7 @@ def split_joint_state(names: Sequence[str], arrays: Mapping[str, Sequence[float]
         if mode is None:
             raise JointStateCommandError(f'unknown joint {name!r}')
         taken = 0
-        for source, kind in MODE_SOURCES[mode]:
+        for source, kind in MODES[mode].joint_state:
             if source not in given:
                 continue
             value = given[source][index]
@@ -69,7 +60,7 @@ def split_joint_state(names: Sequence[str], arrays: Mapping[str, Sequence[float]
             values.append(value)
             taken += 1
         if not taken:
-            wanted = ' or '.join(source for source, _ in MODE_SOURCES[mode]) or 'nothing'
+            wanted = ' or '.join(source for source, _ in MODES[mode].joint_state) or 'nothing'
             raise JointStateCommandError(
                 f'joint {name!r} is in {mode} mode, which takes {wanted} from a joint-state '
                 f'command; this one gives {", ".join(sorted(given))}')

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 import math
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver.errors import ConfigurationError
+from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.protocol import MAX_ID
 import yaml  # type: ignore[import-untyped]
 
@@ -45,7 +45,7 @@ class ParamSpec:
     choices: Tuple[Any, ...] = ()
 
 
-BAUDS = tuple(sorted(ct.BAUD_RATES.values()))
+BAUDS = tuple(sorted(xm430.BAUD_RATES.values()))
 MISSING_SERVO_POLICIES = ('refuse', 'skip')
 READ_MODES = ('sync', 'fast_sync', 'auto')
 WRITE_MODES = ('indirect', 'per_register')
@@ -283,9 +283,9 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         wanted = _model(key, params[key])
     key = f'{name}.operating_mode'
     mode = _check_type(key, params.get(key, 'position'), str)
-    if mode not in ct.OPERATING_MODES:
+    if mode not in modes.BY_NAME:
         raise ConfigError(key, f'unknown operating mode {mode!r} (one of '
-                          f'{list(ct.OPERATING_MODES)})')
+                          f'{list(modes.NAMES)})')
     if wanted is not None and mode not in wanted.modes:
         raise ConfigError(key, f'{wanted.name} has no {mode} mode (its modes: '
                           f'{", ".join(wanted.modes)})')
@@ -317,7 +317,7 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
                         gripper, ends[0], ends[1])
     # Without a model the seed's table judges the file now (a register only other models
     # have is judged at configure, against the model the servo answers with).
-    problem = _check_registers(joint, wanted or models.model_for(ct.MODEL_NUMBER),
+    problem = _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER),
                                lenient=wanted is None)
     if problem is not None:
         raise ConfigError(*problem)
@@ -369,9 +369,9 @@ def _check_registers(joint: JointConfig, table: models.Model,
     return None
 
 
-def describe_register(joint: JointConfig, register: str) -> ct.Item:
+def describe_register(joint: JointConfig, register: str) -> models.Item:
     """Return the item a joint's register names: the configured model's, the seed's, or any."""
-    for table in (joint.model, models.model_for(ct.MODEL_NUMBER), *models.ALL_MODELS):
+    for table in (joint.model, models.model_for(xm430.MODEL_NUMBER), *models.ALL_MODELS):
         if table is not None and table.has(register):
             return table.item(register)
     raise KeyError(register)

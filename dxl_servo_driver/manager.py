@@ -18,7 +18,6 @@ import threading
 import time
 from typing import Any, Callable, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
@@ -33,6 +32,7 @@ from dxl_servo_driver.driver.servo import (
     ManagerError, PortState, Result, Roster, Servo, StaleGuard)
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.tasks import Task, TaskRunner
 from dxl_servo_driver.transports import open_transport, PortFactory
@@ -217,7 +217,7 @@ class Manager:
     def bus_budget(self) -> model.BusBudget:
         """Return what one cycle costs on this bus."""
         bus = self._link.bus
-        rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / ct.RETURN_DELAY_UNIT_S))
+        rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / RETURN_DELAY_UNIT_S))
         return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
                                 rdt_raw, self.config.latency_timer / 1000.0,
                                 fast=self._cycle.fast)

@@ -9,37 +9,9 @@ from dataclasses import dataclass
 import struct
 from typing import Callable, Mapping, Optional
 
-from dxl_servo_driver import control_table as ct
-from dxl_servo_driver.models import Model
+from dxl_servo_driver.models import Item, Model, modes, xm430
 from dxl_servo_driver.protocol import (
-    BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, STATUS_OVERHEAD)
-
-# The kinds of goal, and the register each one writes (SPEC section 2, Topics).
-GOAL_REGISTERS: dict[str, str] = {'position': 'goal_position', 'velocity': 'goal_velocity',
-                                  'current': 'goal_current', 'pwm': 'goal_pwm'}
-MODE_KINDS = tuple(GOAL_REGISTERS)
-
-MODE_NAMES: dict[int, str] = {value: name for name, value in ct.OPERATING_MODES.items()}
-POSITION_MODES = frozenset({'position', 'extended_position', 'current_based_position'})
-
-# Which command kinds drive a joint in each mode (SPEC section 2, Topics). In current-based
-# position mode the current goal is the current limit of the position controller.
-MODE_COMMANDS: dict[str, frozenset[str]] = {
-    'current': frozenset({'current'}),
-    'velocity': frozenset({'velocity'}),
-    'position': frozenset({'position'}),
-    'extended_position': frozenset({'position'}),
-    'current_based_position': frozenset({'position', 'current'}),
-    'pwm': frozenset({'pwm'}),
-}
-
-# What a mode change resets on the servo (seed, Operating Mode note 1): the driver re-applies the
-# configured values of these after every mode switch.
-MODE_CHANGE_RESETS = (
-    'profile_velocity', 'profile_acceleration', 'goal_pwm', 'goal_current',
-    'velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
-    'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain',
-)
+    BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
 
 # Registers the driver manages itself; a configuration may not set them.
 DRIVER_OWNED = frozenset(
@@ -63,7 +35,7 @@ REFUSED_REGISTERS: dict[str, str] = {
 }
 
 
-def writable_register(model: Model, name: str, runtime: bool = False) -> ct.Item:
+def writable_register(model: Model, name: str, runtime: bool = False) -> Item:
     """Return the item a configuration (or write_register) may write, or raise ValueError."""
     if not model.has(name):
         raise ValueError(f'unknown register {name!r} (not in the control table of '
@@ -122,12 +94,12 @@ def check_register_set(values: Mapping[str, int], name: str, value: int, mode: s
         if name == high and value < values[low]:
             raise ValueError(f'{high} {value} is below {low} ({values[low]})')
     if (name == 'homing_offset' and mode == 'position'
-            and abs(value) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT):
+            and abs(value) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT):
         raise ValueError('position mode ignores a homing offset beyond +-1024 (the manual); '
                          'use extended_position for larger offsets')
 
 
-def check_range(item: ct.Item, value: int) -> None:
+def check_range(item: Item, value: int) -> None:
     """Raise ValueError when a raw value is outside the item's static range."""
     if not item.minimum <= value <= item.maximum:
         unit = f' {item.unit}' if item.unit else ''
@@ -322,16 +294,6 @@ def state_block(model: Model, effort_register: str) -> StateBlock:
 # the servo's operating mode, so that one sync write at one address carries every joint's goals
 # whatever their modes (SPEC section 2: one sync write per cycle).
 GOAL_SLOT_SIZE = 6
-# The goal registers of each mode, in slot order: what changes most often first, so that a
-# write of that alone is the shortest.
-SLOT_REGISTERS: dict[str, tuple[str, ...]] = {
-    'position': ('goal_position',),
-    'extended_position': ('goal_position',),
-    'current_based_position': ('goal_position', 'goal_current'),
-    'velocity': ('goal_velocity',),
-    'current': ('goal_current',),
-    'pwm': ('goal_pwm',),
-}
 
 
 class GoalSlot:
@@ -346,7 +308,7 @@ class GoalSlot:
     """
 
     def __init__(self, model: Model, mode: str, map_address: int, data_address: int) -> None:
-        self.registers = SLOT_REGISTERS[mode]
+        self.registers = modes.BY_NAME[mode].slot
         self.data_address = data_address
         self.map_address = map_address
         items = [model.item(name) for name in self.registers]
@@ -383,14 +345,14 @@ def goal_slot(model: Model, block: StateBlock, mode: str) -> Optional[GoalSlot]:
     """
     first = block.size
     entries = model.indirect[first:first + GOAL_SLOT_SIZE]
-    if len(entries) < GOAL_SLOT_SIZE or mode not in SLOT_REGISTERS:
+    if len(entries) < GOAL_SLOT_SIZE or mode not in modes.BY_NAME:
         return None
     data = [pair[1] for pair in entries]
     addresses = [pair[0] for pair in entries]
     if (data != list(range(data[0], data[0] + GOAL_SLOT_SIZE))
             or addresses != list(range(addresses[0], addresses[0] + 2 * GOAL_SLOT_SIZE, 2))):
         return None
-    if any(not model.has(name) for name in SLOT_REGISTERS[mode]):
+    if any(not model.has(name) for name in modes.BY_NAME[mode].slot):
         return None
     return GoalSlot(model, mode, addresses[0], data[0])
 
@@ -516,5 +478,5 @@ def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,
     return BusBudget(
         bytes_per_cycle=total,
         wire_time_s=total * BITS_PER_BYTE / baud_bps,
-        return_delay_s=(1 if fast else n_servos) * return_delay_time_raw * ct.RETURN_DELAY_UNIT_S,
+        return_delay_s=(1 if fast else n_servos) * return_delay_time_raw * RETURN_DELAY_UNIT_S,
         latency_s=latency_timer_s)

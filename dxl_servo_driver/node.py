@@ -14,16 +14,16 @@ from typing import Any, Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import trajectory as traj
 from dxl_servo_driver.commands import JointStateCommandError, split_joint_state
 from dxl_servo_driver.errors import DriverError, Interrupted
 from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
 from dxl_servo_driver.manager import Manager, ManagerError
+from dxl_servo_driver.models import xm430
 from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.cycle import CycleRunner
 from dxl_servo_driver.ros.diagnostics import diagnostics
-from dxl_servo_driver.ros.interfaces import COMMAND_KINDS, Interfaces
+from dxl_servo_driver.ros.interfaces import Interfaces
 from dxl_servo_driver.ros.messages import JointTable, servo_states, time_msg
 from dxl_servo_driver_msgs.msg import ServoStateArray
 from rcl_interfaces.msg import SetParametersResult
@@ -32,7 +32,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
-__all__ = ['COMMAND_KINDS', 'DriverNode', 'main', 'NODE_NAME', 'StartupFailure']
+__all__ = ['DriverNode', 'main', 'NODE_NAME', 'StartupFailure']
 
 NODE_NAME = 'dxl_servo_driver'
 
@@ -390,7 +390,7 @@ class DriverNode(LifecycleNode):
                 high = units.position_to_rad(servo.limits['max_position_limit'])
             else:
                 # Multi-turn: the goal register's range, in the joint's continuous frame.
-                bound = ct.EXTENDED_POSITION_LIMIT
+                bound = xm430.EXTENDED_POSITION_LIMIT
                 low = units.position_to_rad(-bound + servo.turn_offset)
                 high = units.position_to_rad(bound + servo.turn_offset)
             limits[servo.name] = traj.Limits(servo.mode, low, high, servo.online)

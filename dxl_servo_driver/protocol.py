@@ -30,6 +30,7 @@ FAST_PART_OVERHEAD = 4      # error, id, crc 2 around each servo's data
 # a larger value is taken as line noise and the parser resyncs.
 MAX_PACKET_LENGTH = 4096
 DEFAULT_INTER_BYTE_TIMEOUT_S = 0.05
+RETURN_DELAY_UNIT_S = 2e-6   # a servo's Return Delay Time register counts 2 us
 
 _STUFF_PATTERN = b'\xff\xff\xfd'
 _STUFFED_PATTERN = b'\xff\xff\xfd\xfd'

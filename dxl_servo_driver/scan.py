@@ -23,12 +23,12 @@ import sys
 from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set, TextIO, Tuple
 
 from dxl_servo_driver import config
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
+from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
-from dxl_servo_driver.protocol import MAX_ID
+from dxl_servo_driver.protocol import MAX_ID, RETURN_DELAY_UNIT_S
 from dxl_servo_driver.serial_port import open_port
 
 EXIT_OK = 0
@@ -42,11 +42,13 @@ EXIT_INTERRUPTED = 130
 # last, as its broadcast PING waits longest (the SDK waits for 252 replies' worth of bytes).
 PREFERRED_BAUDS = (57600, 1_000_000)
 UNKNOWN_MODEL = 'unknown model'
+# Where scan reads the firmware version of any servo: the same address on every X-series table.
+MANUAL_TABLE = models.model_for(xm430.MODEL_NUMBER)
 # A scan is not time-critical: wait generously for each reply beyond its wire time (the USB
 # adapter's latency timer alone is 16 ms by default on Linux).
 DEFAULT_PROTOCOL_TIMEOUT_MS = 50.0
 # The largest Return Delay Time a servo can have: 254 x 2 us.
-MAX_RETURN_DELAY_S = 254 * ct.RETURN_DELAY_UNIT_S
+MAX_RETURN_DELAY_S = 254 * RETURN_DELAY_UNIT_S
 READ_ATTEMPTS = 3
 SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
 LINUX_LATENCY_TIMER_MS = 16.0   # what an FTDI adapter's latency timer is unless set
@@ -59,7 +61,7 @@ HINT = ('Usual causes: the servos have no power (the LED blinks once at power-up
 
 def default_bauds() -> List[int]:
     """Return every baud rate of the servo's table, in the order a scan tries them."""
-    rest = sorted(b for b in ct.BAUD_RATES.values() if b not in PREFERRED_BAUDS and b != 9600)
+    rest = sorted(b for b in xm430.BAUD_RATES.values() if b not in PREFERRED_BAUDS and b != 9600)
     return list(PREFERRED_BAUDS) + rest + [9600]
 
 
@@ -73,10 +75,8 @@ def model_name(model_number: int) -> str:
 
 def mode_name(mode_raw: int) -> Optional[str]:
     """Return the operating mode's name (config spelling) for a register value, None if none."""
-    for name, value in ct.OPERATING_MODES.items():
-        if value == mode_raw:
-            return name
-    return None
+    mode = modes.BY_NUMBER.get(mode_raw)
+    return mode.name if mode is not None else None
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ class ScanResult:
     warnings: List[str]
 
 
-def _read_register(bus: Bus, servo_id: int, item: ct.Item) -> Optional[int]:
+def _read_register(bus: Bus, servo_id: int, item: models.Item) -> Optional[int]:
     # A reply may come late on a busy machine or a noisy bus: a few tries before giving up.
     for _ in range(READ_ATTEMPTS):
         try:
@@ -165,7 +165,7 @@ def _read_register(bus: Bus, servo_id: int, item: ct.Item) -> Optional[int]:
 def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int) -> FoundServo:
     # Firmware Version (6) is at the same address on every Protocol 2.0 servo; the others are
     # read only from a model whose control table is known.
-    firmware = _read_register(bus, servo_id, ct.BY_NAME['firmware_version'])
+    firmware = _read_register(bus, servo_id, MANUAL_TABLE.item('firmware_version'))
     if model_number not in models.SUPPORTED:
         return FoundServo(servo_id, baud_bps, model_number, firmware)
     table = models.model_for(model_number, firmware)
@@ -263,7 +263,7 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
     ids: Set[int] = set()
     for servo in sorted(servos, key=lambda s: (s.baud_bps != baud_bps, s.servo_id, s.baud_bps)):
         if servo.baud_bps != baud_bps:
-            raw = {bps: raw for raw, bps in ct.BAUD_RATES.items()}[baud_bps]
+            raw = {bps: raw for raw, bps in xm430.BAUD_RATES.items()}[baud_bps]
             left_out.append(f'id {servo.servo_id} answered at {servo.baud_bps} bps, not '
                             f'{baud_bps}: set its baud_rate register to {raw} ({baud_bps} bps) '
                             'or run a second node at its baud')
@@ -340,7 +340,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
-    bauds = sorted(ct.BAUD_RATES.values())
+    bauds = sorted(xm430.BAUD_RATES.values())
     parser = _Parser(prog='scan', description='Find Dynamixel servos (Protocol 2.0) on a port.')
     parser.add_argument('--port', required=True, help='serial device, e.g. /dev/ttyUSB0')
     parser.add_argument('--baud', type=int, nargs='+', metavar='B',

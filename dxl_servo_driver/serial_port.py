@@ -20,8 +20,8 @@ import termios
 import time
 from typing import Callable, Protocol, TypeVar
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.errors import PortError
+from dxl_servo_driver.models import xm430
 from dxl_servo_driver.termios2 import set_tty_speed
 import serial
 
@@ -261,7 +261,7 @@ def _describe_open_error(device: str, exc: Exception) -> str:
 
 def open_port(device: str, baud_bps: int) -> SerialPort:
     """Open a real serial device; PortError with a clear reason when it cannot."""
-    if baud_bps not in ct.BAUD_RATES.values():
+    if baud_bps not in xm430.BAUD_RATES.values():
         raise PortError(f"baud rate {baud_bps} is not one of the servo's "
-                        f'{sorted(ct.BAUD_RATES.values())}')
+                        f'{sorted(xm430.BAUD_RATES.values())}')
     return SerialPort(device, baud_bps)

@@ -13,10 +13,11 @@ from dataclasses import dataclass, field
 import math
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
+from dxl_servo_driver.models import modes
+
 __all__ = ['Executor', 'Limits', 'Outcome', 'Point', 'Trajectory', 'TrajectoryError',
            'validate']
 
-POSITION_MODES = frozenset({'position', 'extended_position', 'current_based_position'})
 # After the last point, how long the joints get to settle before the end is judged.
 SETTLE_S = 0.5
 
@@ -108,7 +109,7 @@ def validate(joints: Sequence[str], points: Sequence[Point], limits: Dict[str, L
             raise TrajectoryError(f'unknown joint {name!r}')
         if not joint.online:
             raise TrajectoryError(f'joint {name!r} is not on the bus')
-        if joint.mode not in POSITION_MODES:
+        if joint.mode not in modes.POSITION_MODES:
             raise TrajectoryError(f'joint {name!r} is in {joint.mode} mode: trajectories drive '
                                   'joints in a position mode only')
     previous = -math.inf

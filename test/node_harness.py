@@ -16,6 +16,7 @@ from typing import (
 
 from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.node import DriverNode, NODE_NAME, StartupFailure
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.transports import open_transport
@@ -35,7 +36,7 @@ from sensor_msgs.msg import JointState
 M = TypeVar('M')
 SERVICE_TIMEOUT_S = 10.0    # generous deadlines: a busy 2-core machine may be slow
 DISCOVERY_TIMEOUT_S = 10.0
-COMMAND_KINDS = ('position', 'velocity', 'current', 'pwm')
+COMMAND_KINDS = modes.COMMAND_KINDS
 SERVICE_TYPES: Dict[str, Any] = {
     'set_position': SetGoals, 'set_velocity': SetGoals, 'set_current': SetGoals,
     'set_pwm': SetGoals, 'set_operating_mode': SetOperatingMode, 'set_torque': SetTorque,

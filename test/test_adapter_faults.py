@@ -6,7 +6,8 @@ import time
 from typing import Callable, Iterator, TypeVar
 
 from adapter_faults import AdapterProxy, FaultEngine, Faults, FaultyPort, PARTIAL_FLUSH_S
-from dxl_servo_driver import control_table, protocol
+from dxl_servo_driver import protocol
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import encode_instruction, HEADER, Instruction
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortDisconnected, SimPortHandler
@@ -16,15 +17,17 @@ from processes import StartVirtualBus
 import pytest
 import serial
 
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
+
 BAUD = 1_000_000
-ADDR_ID = control_table.lookup('id').address
-ADDR_MODEL_NUMBER = control_table.lookup('model_number').address
+ADDR_ID = MANUAL.lookup('id').address
+ADDR_MODEL_NUMBER = MANUAL.lookup('model_number').address
 T = TypeVar('T')
 
 
 def read_request(servo_id: int, name: str) -> bytes:
     """Return a READ instruction packet for one register."""
-    item = control_table.lookup(name)
+    item = MANUAL.lookup(name)
     params = item.address.to_bytes(2, 'little') + item.size.to_bytes(2, 'little')
     return encode_instruction(servo_id, Instruction.READ, params)
 
@@ -364,11 +367,11 @@ def test_proxy_serves_the_stock_sdk_at_1_mbps(virtual_bus: StartVirtualBus) -> N
         try:
             for servo_id in (1, 2):
                 assert retried(lambda: handler.ping(client, servo_id)) == (
-                    control_table.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
+                    xm430.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
             assert retried(lambda: handler.read1ByteTxRx(client, 2, ADDR_ID)) == (
                 2, sdk.COMM_SUCCESS, 0)
             assert retried(lambda: handler.read2ByteTxRx(client, 1, ADDR_MODEL_NUMBER)) == (
-                control_table.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
+                xm430.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
         finally:
             client.closePort()
         assert proxy.upstream_baud == BAUD

@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Tuple
 from dxl_servo_driver import model, protocol
 from dxl_servo_driver.config import validate
 from dxl_servo_driver.manager import Manager
-from dxl_servo_driver.models import ALL_MODELS, model_for
+from dxl_servo_driver.models import ALL_MODELS, model_for, modes
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet
 from dxl_servo_driver.sim.bus import SimBus
@@ -61,7 +61,7 @@ def test_every_write_length_sets_the_slot_registers_whole(table: model.Model) ->
             assert slot is None   # the X330 before firmware 53: no room after its block
             continue
         assert slot is not None and slot.data_address == SLOT_ADDRESS
-        assert slot.registers == model.SLOT_REGISTERS[mode]
+        assert slot.registers == modes.BY_NAME[mode].slot
         goals = {name: _GOALS[name] for name in slot.registers}
         for name in slot.registers:
             length = slot.needs[name]

@@ -44,7 +44,6 @@ def test_only_the_node_imports_ros_and_only_the_transport_imports_serial() -> No
 
 def test_the_simulator_and_model_import_neither() -> None:
     for path in list((PACKAGE / 'sim').glob('*.py')) + [PACKAGE / 'model.py',
-                                                        PACKAGE / 'control_table.py',
                                                         PACKAGE / 'protocol.py']:
         modules = imported_modules(path)
         assert not modules & (set(ROS_MODULES) | set(HARDWARE_MODULES)), path.name
@@ -57,7 +56,7 @@ LAYERS = {
     'transports.py': 2, 'trajectory.py': 2, 'commands.py': 2,
     'gripper.py': 2,
     'bus.py': 1, 'serial_port.py': 1,
-    'protocol.py': 0, 'control_table.py': 0, 'errors.py': 0, 'models': 0, 'termios2.py': 0,
+    'protocol.py': 0, 'errors.py': 0, 'models': 0, 'termios2.py': 0,
 }
 
 

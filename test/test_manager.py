@@ -9,12 +9,11 @@ import math
 import time
 from typing import Any, Callable, Dict, List, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver.config import DriverConfig, validate
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.manager import Manager, ManagerError
-from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet, StreamParser
 from dxl_servo_driver.sim.bus import SimBus
@@ -171,7 +170,7 @@ def test_eeprom_is_written_only_where_it_differs(rig: Rig) -> None:
     config = validate(params())
     first = rig.manager(config)
     first.configure()
-    eeprom = {item.address for item in ct.ITEMS if item.area == 'eeprom'}
+    eeprom = {item.address for item in xm430.ITEMS if item.area == 'eeprom'}
     written = {a for a in rig.tap.written_addresses(2) if a in eeprom}
     # wheel: operating_mode (11), return_delay_time (9), velocity_limit (44) differ from defaults.
     assert written == {11, 9, 44}

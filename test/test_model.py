@@ -2,17 +2,19 @@
 
 import math
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
-from dxl_servo_driver.models import ALL_MODELS, Model, model_for
+from dxl_servo_driver.models import ALL_MODELS, Model, model_for, modes, xm430
 from dxl_servo_driver.models.units import units_for
 from hypothesis import given, strategies as st
 import pytest
 
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
+
 SEED = units_for(model_for(1030))
 
 
-@given(st.integers(min_value=-ct.EXTENDED_POSITION_LIMIT, max_value=ct.EXTENDED_POSITION_LIMIT))
+@given(st.integers(min_value=-xm430.EXTENDED_POSITION_LIMIT,
+                   max_value=xm430.EXTENDED_POSITION_LIMIT))
 def test_position_round_trip_from_raw(raw: int) -> None:
     assert SEED.position_from_rad(SEED.position_to_rad(raw)) == raw
 
@@ -118,7 +120,7 @@ def test_state_block_decodes_signed_values() -> None:
               'moving': 1, 'moving_status': 0x33, 'hardware_error_status': 0x24,
               'torque_enable': 1, 'status_return_level': 2, 'realtime_tick': 32767}
     for field in block.fields:
-        item = ct.BY_NAME[field.name]
+        item = MANUAL.item(field.name)
         raw[field.offset:field.offset + field.size] = values[field.name].to_bytes(
             field.size, 'little', signed=item.signed)
     decoded = dict(zip((field.name for field in block.fields), block.decode(bytes(raw))))
@@ -140,12 +142,19 @@ def test_bus_budget_matches_the_spec_formula() -> None:
     assert slow.rate_limit_hz < 50.0
 
 
-def test_mode_commands_cover_every_mode() -> None:
-    assert set(model.MODE_COMMANDS) == set(ct.OPERATING_MODES)
-    for kinds in model.MODE_COMMANDS.values():
-        assert kinds <= set(model.MODE_KINDS)
+def test_the_mode_table_is_whole() -> None:
+    # The XM430 manual's modes and register values.
+    assert modes.numbers(*modes.NAMES) == {'current': 0, 'velocity': 1, 'position': 3,
+                                           'extended_position': 4, 'current_based_position': 5,
+                                           'pwm': 16}
+    for mode in modes.MODES:
+        assert mode.holding in mode.commands and set(mode.commands) <= set(modes.COMMAND_KINDS)
+        assert mode.slot[0] == mode.holding_register   # what changes most often first
+        assert {kind for _, kind in mode.joint_state} <= set(mode.commands)
+        assert mode.position == (mode.holding == 'position')
+    assert modes.POSITION_NUMBERS == {3, 4, 5}
     for table in ALL_MODELS:
         units = units_for(table)
         for mode in table.modes:
             # Every mode a model has is driven by commands it has.
-            assert model.MODE_COMMANDS[mode] <= set(units.kinds), (table.name, mode)
+            assert set(modes.BY_NAME[mode].commands) <= set(units.kinds), (table.name, mode)

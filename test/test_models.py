@@ -6,10 +6,10 @@ import math
 import pathlib
 import re
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.models import (
-    ALL_MODELS, FAMILIES, Model, model_for, model_named, ModelError, SEED_DIFFERENCES,
-    SUPPORTED, unsupported_reason)
+    ALL_MODELS, FAMILIES, MANUAL_DIFFERENCES, Model, model_for, model_named, ModelError, modes,
+    SUPPORTED, unsupported_reason, xm430)
+from dxl_servo_driver.models.layout import EEPROM_END
 import pytest
 
 
@@ -148,20 +148,20 @@ def test_every_other_sdk_model_is_refused_by_name() -> None:
 @pytest.mark.parametrize('number', [1020, 1030])
 def test_xm430_tables_carry_the_seed_items_unchanged(number: int) -> None:
     model = model_for(number)
-    for seed in ct.ITEMS:
+    for seed in xm430.ITEMS:
         ours = model.item(seed.name)
         if seed.name == 'model_number':
             # The seed is model 1030; only the number it reports differs for 1020.
             assert ours.initial == number
-            assert replace(ours, initial=ct.MODEL_NUMBER) == seed
+            assert replace(ours, initial=xm430.MODEL_NUMBER) == seed
         else:
             assert ours == seed
-    added = {item.name for item in model.items} - {seed.name for seed in ct.ITEMS}
+    added = {item.name for item in model.items} - {seed.name for seed in xm430.ITEMS}
     assert added == {'drive_mode', 'secondary_id', 'bus_watchdog', 'startup_configuration',
                      'backup_ready'}
-    assert model.modes == ct.OPERATING_MODES
-    assert model.bauds == ct.BAUD_RATES
-    assert model.hardware_error_bits == ct.HARDWARE_ERROR_BITS
+    assert model.modes == modes.numbers(*modes.NAMES)
+    assert model.bauds == xm430.BAUD_RATES
+    assert model.hardware_error_bits == xm430.HARDWARE_ERROR_BITS
 
 
 def test_seed_datasheet_is_the_xm430_w350_one() -> None:
@@ -178,11 +178,11 @@ def test_seed_datasheet_is_the_xm430_w350_one() -> None:
 
 
 def test_seed_differences_are_listed() -> None:
-    text = ' '.join(SEED_DIFFERENCES)
+    text = ' '.join(MANUAL_DIFFERENCES)
     for name in ('Drive Mode', 'Secondary(Shadow) ID', 'Bus Watchdog', 'Acceleration Limit',
                  'Startup Configuration', 'Backup Ready'):
         assert name in text
-    assert all(sentence.endswith('.') for sentence in SEED_DIFFERENCES)
+    assert all(sentence.endswith('.') for sentence in MANUAL_DIFFERENCES)
 
 
 # --- internal consistency -------------------------------------------------------------------
@@ -198,7 +198,7 @@ def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
     for item in model.items:
         assert re.fullmatch(r'[a-z][a-z0-9_]*', item.name), item.name
         assert item.size in (1, 2, 4) and item.access in ('R', 'RW')
-        assert item.area == ('eeprom' if item.address < ct.EEPROM_END else 'ram'), item.name
+        assert item.area == ('eeprom' if item.address < EEPROM_END else 'ram'), item.name
         assert item.minimum <= item.initial <= item.maximum, item.name
         bits = 8 * item.size - (1 if item.signed else 0)
         low, high = (-(1 << bits), (1 << bits) - 1) if item.signed else (0, (1 << bits) - 1)
@@ -258,7 +258,7 @@ def test_indirect_entries_match_the_items(model: Model) -> None:
         target = model.item(f'indirect_data_{number}')
         assert (entry.address, entry.size, entry.initial) == (address, 2, datum)
         assert (target.address, target.size) == (datum, 1)
-        assert entry.minimum == ct.EEPROM_END and entry.maximum == model.table_end - 1
+        assert entry.minimum == EEPROM_END and entry.maximum == model.table_end - 1
 
 
 @pytest.mark.parametrize('model', ALL_MODELS, ids=_label)

@@ -16,6 +16,7 @@ import os
 import random
 from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence, Tuple
 
+from dxl_servo_driver.models import modes
 from node_harness import NodeHarness, sim_params
 import pytest
 
@@ -43,10 +44,10 @@ JOINTS: Dict[str, Dict[str, Any]] = {
              'registers': {'current_limit': 400}},
 }
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
-KIND_REGISTER = {'position': 'goal_position', 'velocity': 'goal_velocity',
-                 'current': 'goal_current', 'pwm': 'goal_pwm'}
+KIND_REGISTER = modes.GOAL_REGISTERS
 GOAL_REGISTERS = tuple(KIND_REGISTER.values())
-# SPEC section 2, Topics: which command kinds drive a joint in each mode.
+# Which command kinds drive a joint in each mode, as the README states it: written here on its
+# own, not taken from models.modes, so a wrong mode table is caught.
 MODE_KINDS = {
     'current': {'current'}, 'velocity': {'velocity'}, 'position': {'position'},
     'extended_position': {'position'}, 'current_based_position': {'position', 'current'},

@@ -10,6 +10,7 @@ import pathlib
 import shlex
 from typing import Any, Dict, List, Tuple
 
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.node import NODE_NAME
 from node_harness import NodeHarness
 import pytest
@@ -18,8 +19,7 @@ import yaml
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 README = (ROOT / 'README.md').read_text()
 PREFIX = f'/{NODE_NAME}/'
-GOAL_REGISTERS = {'position': 'goal_position', 'velocity': 'goal_velocity',
-                  'current': 'goal_current', 'pwm': 'goal_pwm'}
+GOAL_REGISTERS = modes.GOAL_REGISTERS
 
 
 def readme_lines() -> List[List[str]]:

@@ -6,13 +6,15 @@ import pathlib
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import config, scan
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError
+from dxl_servo_driver.models import model_for, modes, xm430
 from dxl_servo_driver.serial_port import open_port
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
 import yaml
+
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
 
 # Tests that expect replies give each one plenty of time: a loaded machine may not schedule the
 # virtual_bus process at once. Nothing here measures time.
@@ -115,11 +117,11 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
         start: Starter, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path) -> None:
     vb = start([1, 2, 3], 57600)
     device = vb.device
-    mode = ct.BY_NAME['operating_mode']
-    baud = ct.BY_NAME['baud_rate']
+    mode = MANUAL.item('operating_mode')
+    baud = MANUAL.item('baud_rate')
 
     def prepare(bus: Bus) -> None:
-        retried(lambda: bus.write_item(3, mode, ct.OPERATING_MODES['velocity']))
+        retried(lambda: bus.write_item(3, mode, modes.BY_NAME['velocity'].number))
         try:
             # The servo switches baud on this write; its status may not arrive at the old one.
             bus.write_item(2, baud, 3)   # raw 3 = 1 Mbps
@@ -151,9 +153,9 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
 def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest.CaptureFixture,
                                                   tmp_path: pathlib.Path) -> None:
     vb = start([4, 9], 1_000_000)
-    mode = ct.BY_NAME['operating_mode']
+    mode = MANUAL.item('operating_mode')
     with_bus(vb.device, 1_000_000, lambda bus: retried(
-        lambda: bus.write_item(9, mode, ct.OPERATING_MODES['current_based_position'])))
+        lambda: bus.write_item(9, mode, modes.BY_NAME['current_based_position'].number)))
     output = tmp_path / 'bus.yaml'
     status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '1000000', '--output',
                               str(output), '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
@@ -244,7 +246,7 @@ def test_default_bauds_are_the_whole_table_most_common_first() -> None:
     bauds = scan.default_bauds()
     assert bauds[:2] == [57600, 1000000]
     assert bauds[-1] == 9600   # slowest broadcast ping last
-    assert sorted(bauds) == sorted(ct.BAUD_RATES.values())
+    assert sorted(bauds) == sorted(xm430.BAUD_RATES.values())
 
 
 def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optional[int] = 3,

@@ -1,6 +1,6 @@
 """Control lines of virtual_bus: the parser, and execution against a real SimBus."""
 
-from dxl_servo_driver import control_table
+from dxl_servo_driver.models import xm430
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.control import Command, ControlError, handle_line, parse
@@ -69,7 +69,7 @@ def test_bad_lines_raise_a_clear_error(line: str, fragment: str) -> None:
 
 
 def test_every_register_name_and_address_parses() -> None:
-    for item in control_table.ITEMS:
+    for item in xm430.ITEMS:
         assert parse(f'get 1 {item.name}').text == item.name
         assert parse(f'get 1 {item.address}').text == item.name
 
@@ -88,7 +88,7 @@ def _bus(ids: list[int]) -> SimBus:
 
 def test_get_reads_a_register_by_name_and_address() -> None:
     bus = _bus([1, 2])
-    model = control_table.MODEL_NUMBER
+    model = xm430.MODEL_NUMBER
     assert handle_line('get 1 model_number', bus) == f'ok get 1 model_number={model}'
     assert handle_line('get 2 7', bus) == 'ok get 2 id=2'
     assert handle_line('get 1 baud_rate', bus) == 'ok get 1 baud_rate=1'
@@ -101,7 +101,7 @@ def test_dump_is_one_line_with_every_register() -> None:
     assert '\n' not in answer
     pairs = dict(token.split('=') for token in answer.split()[3:])
     assert pairs['id'] == '3'
-    assert pairs['model_number'] == str(control_table.MODEL_NUMBER)
+    assert pairs['model_number'] == str(xm430.MODEL_NUMBER)
     assert set(pairs) == set(bus.registers(3))
 
 

@@ -3,20 +3,23 @@
 import errno
 from typing import Iterator
 
-from dxl_servo_driver import control_table, protocol
+from dxl_servo_driver import protocol
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.sim.bus import Reply, SimBus
 from dxl_servo_driver.sim.port import SimPortDisconnected, SimPortHandler
 from dxl_servo_driver.sim.timing import byte_time_s, hybrid_wait, LatenessStats, WireScheduler
 import dynamixel_sdk as sdk
 import pytest
 
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
+
 BAUD = 57600  # the servo's factory Baud Rate (register value 1)
 RDT_S = 250 * 2e-6  # factory Return Delay Time: 250 x 2 us
-ADDR_LED = control_table.lookup('led').address
-ADDR_PROFILE_ACCELERATION = control_table.lookup('profile_acceleration').address
-ADDR_PROFILE_VELOCITY = control_table.lookup('profile_velocity').address
-ADDR_MODEL_NUMBER = control_table.lookup('model_number').address
-ADDR_ID = control_table.lookup('id').address
+ADDR_LED = MANUAL.lookup('led').address
+ADDR_PROFILE_ACCELERATION = MANUAL.lookup('profile_acceleration').address
+ADDR_PROFILE_VELOCITY = MANUAL.lookup('profile_velocity').address
+ADDR_MODEL_NUMBER = MANUAL.lookup('model_number').address
+ADDR_ID = MANUAL.lookup('id').address
 
 
 class FakeClock:
@@ -56,7 +59,7 @@ def handler() -> sdk.Protocol2PacketHandler:
 def test_sdk_ping_every_servo(port: SimPortHandler, handler: sdk.Protocol2PacketHandler) -> None:
     for servo_id in (1, 2, 3):
         model, result, error = handler.ping(port, servo_id)
-        assert (model, result, error) == (control_table.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
+        assert (model, result, error) == (xm430.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
 
 
 def test_sdk_ping_absent_servo_times_out(port: SimPortHandler,
@@ -72,7 +75,7 @@ def test_sdk_write_then_read(port: SimPortHandler, handler: sdk.Protocol2PacketH
     assert handler.write4ByteTxRx(port, 2, ADDR_PROFILE_VELOCITY, 123) == (sdk.COMM_SUCCESS, 0)
     assert handler.read4ByteTxRx(port, 2, ADDR_PROFILE_VELOCITY) == (123, sdk.COMM_SUCCESS, 0)
     assert handler.read2ByteTxRx(port, 2, ADDR_MODEL_NUMBER) == (
-        control_table.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
+        xm430.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
 
 
 def test_sdk_out_of_range_write_gets_data_range_error(
@@ -123,7 +126,7 @@ def test_sdk_broadcast_ping_finds_all(port: SimPortHandler,
     assert result == sdk.COMM_SUCCESS
     assert sorted(found) == [1, 2, 3]
     for servo_id in (1, 2, 3):
-        assert found[servo_id] == [control_table.MODEL_NUMBER, control_table.FIRMWARE_VERSION]
+        assert found[servo_id] == [xm430.MODEL_NUMBER, xm430.FIRMWARE_VERSION]
 
 
 def test_sdk_at_wrong_baud_gets_no_answer(handler: sdk.Protocol2PacketHandler) -> None:
@@ -136,7 +139,7 @@ def test_sdk_at_wrong_baud_gets_no_answer(handler: sdk.Protocol2PacketHandler) -
 
 def test_every_servo_baud_is_accepted() -> None:
     port = SimPortHandler(make_bus(), baudrate=BAUD)
-    for baud_bps in control_table.BAUD_RATES.values():
+    for baud_bps in xm430.BAUD_RATES.values():
         assert port.setBaudRate(baud_bps)
         assert port.getBaudRate() == baud_bps == port.baudrate
         assert port.tx_time_per_byte == pytest.approx(10_000.0 / baud_bps)
@@ -171,7 +174,7 @@ def test_raw_ping_round_trip() -> None:
     reply = port.read(14, 0.1)
     packet = protocol.decode_packet(reply)
     assert packet.servo_id == 2 and packet.error == 0
-    assert int.from_bytes(packet.params[:2], 'little') == control_table.MODEL_NUMBER
+    assert int.from_bytes(packet.params[:2], 'little') == xm430.MODEL_NUMBER
     assert port.in_waiting == 0
 
 
@@ -302,7 +305,7 @@ def test_wire_sync_read_replies_follow_each_other() -> None:
     clock = FakeClock()
     port = SimPortHandler(make_bus(), baudrate=BAUD, timing='wire', clock=clock,
                           sleep=clock.sleep)
-    address = control_table.lookup('present_position').address
+    address = MANUAL.lookup('present_position').address
     params = address.to_bytes(2, 'little') + (4).to_bytes(2, 'little') + bytes([3, 1, 2])
     instruction = protocol.encode_instruction(protocol.BROADCAST_ID,
                                               protocol.Instruction.SYNC_READ, params)
@@ -353,13 +356,13 @@ def test_wire_timing_under_sdk_takes_at_least_the_wire_time(
     port = SimPortHandler(make_bus(), baudrate=9600, timing='wire')
     # servo 1 to 9600 bps via a broadcast write at its factory speed, then the port follows
     port.baudrate = BAUD
-    assert handler.write1ByteTxOnly(port, 1, control_table.lookup('baud_rate').address,
+    assert handler.write1ByteTxOnly(port, 1, MANUAL.lookup('baud_rate').address,
                                     0) == sdk.COMM_SUCCESS
     port.setBaudRate(9600)
     start_s = time.monotonic()
     model, result, _ = handler.ping(port, 1)
     elapsed_s = time.monotonic() - start_s
-    assert (model, result) == (control_table.MODEL_NUMBER, sdk.COMM_SUCCESS)
+    assert (model, result) == (xm430.MODEL_NUMBER, sdk.COMM_SUCCESS)
     assert elapsed_s >= ping_due_s(9600)  # lower bound only: about 25.5 ms at 9600 bps
 
 

@@ -7,12 +7,14 @@ and the results do not depend on the motor model or the machine's speed.
 
 import struct
 
-from dxl_servo_driver.control_table import BY_NAME
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, crc16, decode_packet, encode_instruction, encode_status, ErrorCode,
     Instruction, Packet)
 from dxl_servo_driver.sim.bus import SimBus
 import pytest
+
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
 
 BAUD = 57600
 FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
@@ -21,18 +23,18 @@ FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
 
 def pack(name: str, value: int) -> bytes:
     """Return the little-endian bytes of a register value."""
-    item = BY_NAME[name]
+    item = MANUAL.item(name)
     return struct.pack(FORMATS[(item.size, item.signed)], value)
 
 
 def write_params(name: str, value: int) -> bytes:
     """Return WRITE parameters for one item."""
-    return struct.pack('<H', BY_NAME[name].address) + pack(name, value)
+    return struct.pack('<H', MANUAL.item(name).address) + pack(name, value)
 
 
 def read_params(name: str) -> bytes:
     """Return READ parameters for one item."""
-    item = BY_NAME[name]
+    item = MANUAL.item(name)
     return struct.pack('<HH', item.address, item.size)
 
 
@@ -215,7 +217,7 @@ def test_operating_mode_change_resets(bench: Bench) -> None:
     assert regs['goal_pwm'] == 600 and regs['goal_current'] == 700
     for name in ('velocity_i_gain', 'velocity_p_gain', 'position_d_gain', 'position_i_gain',
                  'position_p_gain', 'feedforward_2nd_gain', 'feedforward_1st_gain'):
-        assert regs[name] == BY_NAME[name].initial, name
+        assert regs[name] == MANUAL.item(name).initial, name
     assert regs['led'] == 1
     assert regs['present_position'] == 123  # re-initialised within one turn
 

@@ -7,19 +7,22 @@ import subprocess
 import time
 from typing import Callable, Iterator, TypeVar
 
-from dxl_servo_driver import control_table, protocol
+from dxl_servo_driver import protocol
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.sim.timing import byte_time_s
 import dynamixel_sdk as sdk
 from processes import LINE_TIMEOUT_S, StartVirtualBus, VirtualBusProcess
 import pytest
 import serial
 
-ADDR_PROFILE_ACCELERATION = control_table.lookup('profile_acceleration').address
-ADDR_ID = control_table.lookup('id').address
-ADDR_MODEL_NUMBER = control_table.lookup('model_number').address
-ADDR_OPERATING_MODE = control_table.lookup('operating_mode').address
-ADDR_TORQUE_ENABLE = control_table.lookup('torque_enable').address
-ADDR_GOAL_VELOCITY = control_table.lookup('goal_velocity').address
+MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
+
+ADDR_PROFILE_ACCELERATION = MANUAL.lookup('profile_acceleration').address
+ADDR_ID = MANUAL.lookup('id').address
+ADDR_MODEL_NUMBER = MANUAL.lookup('model_number').address
+ADDR_OPERATING_MODE = MANUAL.lookup('operating_mode').address
+ADDR_TORQUE_ENABLE = MANUAL.lookup('torque_enable').address
+ADDR_GOAL_VELOCITY = MANUAL.lookup('goal_velocity').address
 
 
 T = TypeVar('T')
@@ -72,7 +75,7 @@ def test_sdk_ping_read_write_over_the_pty(bus3: tuple[VirtualBusProcess, str],
     port = open_sdk_port(link, 1_000_000)
     try:
         for servo_id in (1, 2, 3):
-            expected = (control_table.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
+            expected = (xm430.MODEL_NUMBER, sdk.COMM_SUCCESS, 0)
             assert retried(lambda: handler.ping(port, servo_id)) == expected
         assert handler.ping(port, 4)[1] == sdk.COMM_RX_TIMEOUT
         address = ADDR_PROFILE_ACCELERATION
@@ -106,7 +109,7 @@ def test_sdk_sync_write_sync_read_and_bulk_read(bus3: tuple[VirtualBusProcess, s
         assert bulk.addParam(2, ADDR_ID, 1)
         assert bulk.addParam(3, ADDR_PROFILE_ACCELERATION, 4)
         assert retried(bulk.txRxPacket) == sdk.COMM_SUCCESS
-        assert bulk.getData(1, ADDR_MODEL_NUMBER, 2) == control_table.MODEL_NUMBER
+        assert bulk.getData(1, ADDR_MODEL_NUMBER, 2) == xm430.MODEL_NUMBER
         assert bulk.getData(2, ADDR_ID, 1) == 2
         assert bulk.getData(3, ADDR_PROFILE_ACCELERATION, 4) == 500
     finally:

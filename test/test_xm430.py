@@ -1,12 +1,25 @@
-"""The control table as data: addresses, sizes, areas, initial values and ranges from the seed."""
+"""The XM430 manual's control table as data: addresses, sizes, areas, initial values, ranges."""
 
-from dxl_servo_driver.control_table import (
-    BAUD_RATES, BY_ADDRESS, BY_NAME, decode_hardware_errors, HARDWARE_ERROR_BITS, ITEMS, lookup,
-    MODEL_NUMBER, OPERATING_MODES, TABLE_SIZE)
+from typing import Union
+
+from dxl_servo_driver.models import Item, model_for, modes, xm430
+from dxl_servo_driver.models.xm430 import (
+    BAUD_RATES, HARDWARE_ERROR_BITS, ITEMS, MODEL_NUMBER, TABLE_SIZE)
 import pytest
 
-# (name, address, size, access, initial) transcribed from the seed's table
-SEED_ROWS = [
+MANUAL = model_for(xm430.MODEL_NUMBER)   # model 1030: the manual's items and the e-manual's
+BY_NAME = {item.name: item for item in ITEMS}
+BY_ADDRESS = {item.address: item for item in ITEMS}
+
+
+def lookup(key: Union[str, int]) -> Item:
+    """Return the manual's item with this name or address (KeyError as the model's)."""
+    MANUAL.lookup(key)   # the model says why a key is wrong
+    return BY_NAME[key] if isinstance(key, str) else BY_ADDRESS[key]
+
+
+# (name, address, size, access, initial) transcribed from the manual's table
+MANUAL_ROWS = [
     ('model_number', 0, 2, 'R', 1030), ('id', 7, 1, 'RW', 1), ('baud_rate', 8, 1, 'RW', 1),
     ('return_delay_time', 9, 1, 'RW', 250), ('operating_mode', 11, 1, 'RW', 3),
     ('protocol_version', 13, 1, 'RW', 2), ('homing_offset', 20, 4, 'RW', 0),
@@ -28,8 +41,8 @@ SEED_ROWS = [
     ('indirect_address_29', 578, 2, 'RW', 634), ('indirect_address_56', 632, 2, 'RW', 661),
     ('indirect_data_29', 634, 1, 'RW', 0), ('indirect_data_56', 661, 1, 'RW', 0),
 ]
-# (name, address, size) of items whose initial value the seed gives as '-'
-SEED_DASH_ROWS = [
+# (name, address, size) of items whose initial value the manual gives as '-'
+MANUAL_DASH_ROWS = [
     ('model_information', 2, 4), ('firmware_version', 6, 1), ('goal_pwm', 100, 2),
     ('goal_current', 102, 2), ('goal_velocity', 104, 4), ('goal_position', 116, 4),
     ('realtime_tick', 120, 2), ('present_pwm', 124, 2), ('present_current', 126, 2),
@@ -39,8 +52,8 @@ SEED_DASH_ROWS = [
 ]
 
 
-@pytest.mark.parametrize('name,address,size,access,initial', SEED_ROWS)
-def test_seed_rows(name: str, address: int, size: int, access: str, initial: int) -> None:
+@pytest.mark.parametrize('name,address,size,access,initial', MANUAL_ROWS)
+def test_manual_rows(name: str, address: int, size: int, access: str, initial: int) -> None:
     item = lookup(name)
     expected = (address, size, access, initial)
     assert (item.address, item.size, item.access, item.initial) == expected
@@ -48,15 +61,15 @@ def test_seed_rows(name: str, address: int, size: int, access: str, initial: int
     assert lookup(address) is item
 
 
-@pytest.mark.parametrize('name,address,size', SEED_DASH_ROWS)
-def test_seed_rows_without_initial(name: str, address: int, size: int) -> None:
-    item = BY_NAME[name]
+@pytest.mark.parametrize('name,address,size', MANUAL_DASH_ROWS)
+def test_manual_rows_without_initial(name: str, address: int, size: int) -> None:
+    item = MANUAL.item(name)
     assert (item.address, item.size) == (address, size)
     assert item.minimum <= item.initial <= item.maximum
 
 
-def test_items_cover_the_seed_and_do_not_overlap() -> None:
-    assert len(ITEMS) == len(SEED_ROWS) - 8 + 56 * 2 + len(SEED_DASH_ROWS)
+def test_items_cover_the_manual_and_do_not_overlap() -> None:
+    assert len(ITEMS) == len(MANUAL_ROWS) - 8 + 56 * 2 + len(MANUAL_DASH_ROWS)
     assert [item.address for item in ITEMS] == sorted(item.address for item in ITEMS)
     for previous, item in zip(ITEMS, ITEMS[1:]):
         assert previous.address + previous.size <= item.address, (previous, item)
@@ -85,30 +98,31 @@ def test_signedness_and_limits() -> None:
                       'goal_velocity': 'velocity_limit',
                       'profile_acceleration': 'acceleration_limit',
                       'profile_velocity': 'velocity_limit', 'goal_position': 'max_position_limit'}
-    assert (BY_NAME['homing_offset'].minimum, BY_NAME['homing_offset'].maximum) == (
+    assert (MANUAL.item('homing_offset').minimum, MANUAL.item('homing_offset').maximum) == (
         -1_044_479, 1_044_479)
-    assert BY_NAME['return_delay_time'].maximum == 254
-    voltage = BY_NAME['max_voltage_limit']
+    assert MANUAL.item('return_delay_time').maximum == 254
+    voltage = MANUAL.item('max_voltage_limit')
     assert (voltage.minimum, voltage.maximum) == (95, 160)
 
 
 def test_lookup_errors_are_clear() -> None:
     with pytest.raises(KeyError, match='no control-table item named'):
         lookup('goal_positon')
-    with pytest.raises(KeyError, match='address 10'):
-        lookup(10)
+    with pytest.raises(KeyError, match='address 1$|address 1\\b'):
+        lookup(1)   # inside model_number
 
 
 def test_constants() -> None:
     assert MODEL_NUMBER == 1030
     assert BAUD_RATES == {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000,
                           5: 3_000_000, 6: 4_000_000, 7: 4_500_000}
-    assert OPERATING_MODES == {'current': 0, 'velocity': 1, 'position': 3,
-                               'extended_position': 4, 'current_based_position': 5, 'pwm': 16}
+    assert modes.numbers(*modes.NAMES) == {
+        'current': 0, 'velocity': 1, 'position': 3, 'extended_position': 4,
+        'current_based_position': 5, 'pwm': 16}
     assert sorted(HARDWARE_ERROR_BITS) == [0x01, 0x04, 0x08, 0x10, 0x20]
 
 
 def test_decode_hardware_errors() -> None:
-    assert decode_hardware_errors(0) == []
-    assert decode_hardware_errors(0x25) == ['input_voltage', 'overheating', 'overload']
-    assert decode_hardware_errors(0x80 | 0x08) == ['motor_encoder']
+    assert MANUAL.decode_hardware_errors(0) == []
+    assert MANUAL.decode_hardware_errors(0x25) == ['input_voltage', 'overheating', 'overload']
+    assert MANUAL.decode_hardware_errors(0x80 | 0x08) == ['motor_encoder']

@@ -16,10 +16,10 @@ import math
 import threading
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import model
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.servo import (
-    clamp_position, Log, MODE_KIND, PortState, Result, Roster, Servo, Throttle)
+    clamp_position, Log, PortState, Result, Roster, Servo, Throttle)
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import TaskRunner
 
 Goal = Tuple[Servo, str, int]   # the servo, its goal register, the raw value
@@ -48,7 +48,7 @@ class Goals:
 
         Returns (goals, '') or (None, reason); nothing is queued here.
         """
-        if kind not in model.MODE_KINDS:
+        if kind not in modes.COMMAND_KINDS:
             return None, f'unknown command kind {kind!r}'
         if len(names) == 0:
             return None, 'empty command: no joint names'
@@ -76,9 +76,9 @@ class Goals:
             command = servo.units.kinds.get(kind)
             if command is None:
                 return None, (f'joint {name!r} is a {servo.model.name}, which has no '
-                              f'{model.GOAL_REGISTERS[kind]} register (no {kind} control); '
+                              f'{modes.GOAL_REGISTERS[kind]} register (no {kind} control); '
                               f'its commands: {", ".join(sorted(servo.units.kinds))}')
-            if kind not in model.MODE_COMMANDS[servo.mode]:
+            if kind not in modes.BY_NAME[servo.mode].commands:
                 return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
                               'apply to it')
             if abs(value) > 1e9:
@@ -115,10 +115,10 @@ class Goals:
         now = self._clock()
         with self.lock:
             for servo in self._roster.active():
-                if servo.timed_out or servo.mode in model.POSITION_MODES:
+                if servo.timed_out or servo.mode in modes.POSITION_MODES:
                     continue
                 if now - servo.last_command_s > timeout:
-                    register = servo.units.kinds[MODE_KIND[servo.mode]].register
+                    register = modes.BY_NAME[servo.mode].holding_register
                     queued = self._pending.get(register, {})
                     if queued.get(servo.servo_id, servo.goal_raw.get(register, 0)) != 0:
                         self._queue(servo, register, 0)

@@ -11,17 +11,17 @@ from contextlib import contextmanager
 import time
 from typing import Any, Callable, Iterator, Optional, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.driver.servo import Servo, StaleGuard
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, Interrupted
 from dxl_servo_driver.model import GOAL_SLOT_SIZE, GoalSlot
+from dxl_servo_driver.models import Item
 
 # A changing register this close to the Realtime Tick is read with it, to date the reply.
 DATED_SPAN_BYTES = 64
 
 
-def changes_by_itself(item: ct.Item) -> bool:
+def changes_by_itself(item: Item) -> bool:
     """Return True for registers the servo changes (present values, tick, flags, errors)."""
     return item.area == 'ram' and (item.access == 'R' or item.name.startswith('indirect_data'))
 
@@ -72,7 +72,7 @@ class Link:
             return int(self.attempt(lambda: bus.read_item(servo.servo_id, item)))
         return int(self.attempt(lambda: self._read_dated(servo, item)))
 
-    def _read_dated(self, servo: Servo, item: ct.Item) -> int:
+    def _read_dated(self, servo: Servo, item: Item) -> int:
         """Read a value that changes by itself with the Realtime Tick, refusing a late reply."""
         bus = self.io()
         tick = servo.model.item('realtime_tick')

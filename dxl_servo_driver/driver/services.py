@@ -9,7 +9,6 @@ transaction with a message rather than an exception; a lost port is handled on t
 import threading
 from typing import Callable, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver.driver.cycle import Cycle
@@ -19,6 +18,7 @@ from dxl_servo_driver.driver.recovery import PortWatch, Recovery
 from dxl_servo_driver.driver.servo import PortState, Result, Roster, run, Servo
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import Task, TaskRunner
 
 
@@ -109,9 +109,9 @@ class Services:
     def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
         """Torque off, mode, what a mode change resets re-applied, goal = present, torque back."""
         with self._lock:
-            if mode not in ct.OPERATING_MODES:
+            if mode not in modes.BY_NAME:
                 return Result(False, f'unknown operating mode {mode!r} (one of '
-                              f'{", ".join(ct.OPERATING_MODES)})')
+                              f'{", ".join(modes.NAMES)})')
             if not names:
                 return Result(False, 'no joint named')
             servos, reason = self._servos_named(names)
@@ -236,7 +236,7 @@ class Services:
             return self._request('write', action)
 
 
-def _register(table: models.Model, key: str) -> Tuple[Optional[ct.Item], str]:
+def _register(table: models.Model, key: str) -> Tuple[Optional[models.Item], str]:
     key = key.strip()
     try:
         return table.lookup(int(key) if key.isascii() and key.isdigit() else key), ''

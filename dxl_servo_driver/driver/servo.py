@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver import tasks
 from dxl_servo_driver.config import JointConfig
 from dxl_servo_driver.errors import Refused
 from dxl_servo_driver.model import GoalSlot, StateBlock, TickClock
+from dxl_servo_driver.models import xm430
 from dxl_servo_driver.models.units import Units, units_for
 from dxl_servo_driver.tasks import Steps
 
@@ -35,11 +35,6 @@ IDX_HW_ERROR = _I['hardware_error_status']
 IDX_TORQUE = _I['torque_enable']
 IDX_CANARY = BLOCK.canary_index
 WARN_INTERVAL_S = 2.0
-
-# The command kind each operating mode takes its goals in.
-MODE_KIND = {'velocity': 'velocity', 'current': 'current', 'pwm': 'pwm',
-             'position': 'position', 'extended_position': 'position',
-             'current_based_position': 'position'}
 
 
 class ManagerError(Refused):
@@ -115,7 +110,7 @@ class Servo:
     @classmethod
     def of(cls, joint: JointConfig) -> 'Servo':
         """Return the servo of a joint, with the configured model's table (or the seed's)."""
-        table = joint.model or models.model_for(ct.MODEL_NUMBER)
+        table = joint.model or models.model_for(xm430.MODEL_NUMBER)
         units = units_for(table, joint.torque_constant_nm_per_a)
         return cls(joint, joint.operating_mode, table, units,
                    model.state_block(table, units.effort_register))
@@ -195,7 +190,7 @@ def clamp_position(servo: Servo, raw: int) -> int:
     if servo.mode == 'position' and servo.limits:
         return min(max(raw, servo.limits['min_position_limit']),
                    servo.limits['max_position_limit'])
-    return min(max(raw, -ct.EXTENDED_POSITION_LIMIT), ct.EXTENDED_POSITION_LIMIT)
+    return min(max(raw, -xm430.EXTENDED_POSITION_LIMIT), xm430.EXTENDED_POSITION_LIMIT)
 
 
 def run(steps: Steps) -> None:

@@ -11,14 +11,15 @@ Present Position are kept in the joint's turn offset. The long activities are st
 
 from typing import Any, Callable, Dict, Generator, List, Optional
 
-from dxl_servo_driver import control_table as ct
 from dxl_servo_driver import model
 from dxl_servo_driver import models
 from dxl_servo_driver.config import check_joint_against, DriverConfig
 from dxl_servo_driver.driver.link import Link
 from dxl_servo_driver.driver.servo import (
-    clamp_position, Log, ManagerError, MODE_KIND, Roster, run, Servo)
+    clamp_position, Log, ManagerError, Roster, run, Servo)
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.models import modes, xm430
+from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.tasks import Steps
 
 # Read at configure and kept: the bounds goals are clamped to (those the model has).
@@ -144,7 +145,7 @@ class Setup:
 
     def _set_return_delay(self) -> None:
         delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]
-        self._link.io().return_delay_s = max(delays, default=250) * ct.RETURN_DELAY_UNIT_S
+        self._link.io().return_delay_s = max(delays, default=250) * RETURN_DELAY_UNIT_S
 
     # hold and torque ------------------------------------------------------------------------
     def activate(self, servos: List[Servo]) -> None:
@@ -172,7 +173,7 @@ class Setup:
         present = link.read(servo, 'present_position')
         yield
         goal: Optional[int] = None
-        if servo.mode in model.POSITION_MODES:
+        if servo.mode in modes.POSITION_MODES:
             if not torque and servo.torque_wanted:
                 present = yield from self._into_one_turn(servo, present)
             goal = clamp_position(servo, present)
@@ -181,7 +182,7 @@ class Setup:
                 goals['goal_current'] = _cbp_current(servo)
             yield from self._set_goals(servo, goals)
         else:
-            register = servo.units.kinds[MODE_KIND[servo.mode]].register
+            register = modes.BY_NAME[servo.mode].holding_register
             # A mode change sets goal_current / goal_pwm to their limits: never enable with that.
             yield from self._set_goals(servo, {register: 0})
         if servo.torque_wanted and not torque:
@@ -291,7 +292,7 @@ class Setup:
         # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were reset by
         # the mode change; give back what the configuration set.
         for name, value in servo.joint.registers:
-            if name in model.MODE_CHANGE_RESETS:
+            if name in modes.RESET_BY_MODE_CHANGE:
                 link.write_verified(servo, name, value)
                 yield
         yield from self.hold(servo)
@@ -301,7 +302,7 @@ class Setup:
         # another mode is put back to the configured one.
         offset = self._link.read(servo, 'homing_offset')
         yield
-        if abs(offset) > ct.HOMING_OFFSET_POSITION_MODE_LIMIT:
+        if abs(offset) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT:
             self._link.write_verified(servo, 'homing_offset',
                                       servo.joint.register_dict().get('homing_offset', 0))
             yield
@@ -310,7 +311,8 @@ class Setup:
         """After a failure, believe the servo about its mode."""
         try:
             raw = self._link.read(servo, 'operating_mode')
-            servo.mode = model.MODE_NAMES.get(raw, servo.mode)
+            known = modes.BY_NUMBER.get(raw)
+            servo.mode = known.name if known is not None else servo.mode
         except (PortError, CommError):
             pass
 

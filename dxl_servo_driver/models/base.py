@@ -1,17 +1,33 @@
 """
 The types of the model catalogue: datasheet physics and one model's control table.
 
-Pure data: nothing here talks to a bus.  `Item` is the seed table's own class
-(control_table.Item), so the seed's items and these tables compare field by field.
+Pure data: nothing here talks to a bus.
 """
 
 from dataclasses import dataclass, field
 import math
 
-from dxl_servo_driver.control_table import Item
 from dxl_servo_driver.errors import ConfigurationError
 
 __all__ = ['Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
+
+
+@dataclass(frozen=True)
+class Item:
+    """One control-table item: where it is, its size, access, values and unit."""
+
+    name: str            # the manual's name in snake_case
+    address: int
+    size: int            # bytes
+    area: str            # 'eeprom' or 'ram'
+    access: str          # 'R' or 'RW'
+    initial: int
+    minimum: int
+    maximum: int
+    signed: bool
+    limit: str | None    # the register that bounds it at run time (a data limit error)
+    unit: str
+    description: str
 
 
 class ModelError(ConfigurationError):

@@ -1,10 +1,10 @@
 """
-The supported DYNAMIXEL X-series models, each stated as its differences from the seed.
+The supported DYNAMIXEL X-series models, each stated as its differences from the XM430 manual.
 
-Sources: the seed manual and control_table.py (authority for 1020 and 1030), the ROBOTIS
+Sources: the XM430 manual and models/xm430.py (authority for 1020 and 1030), the ROBOTIS
 model files shipped with dynamixel-sdk 4.1 (addresses and sizes of every model) and the
 ROBOTIS e-manual (initial values, ranges, units, datasheet figures).  Where they disagree
-the choice is commented at the figure; the seed's own differences are in SEED_DIFFERENCES.
+the choice is commented at the figure; the manual's own differences are in MANUAL_DIFFERENCES.
 
 Items that later firmware introduced (Drive Mode and Bus Watchdog from v38, Startup
 Configuration and Backup Ready from v45, v46 on the X330) are in every table, as the SDK's
@@ -14,27 +14,27 @@ the model files do (the X330's indirect block).
 
 from dataclasses import dataclass, field
 
-from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import Item, Model, ModelError, Physics, VoltagePoint
 from dxl_servo_driver.models.layout import (
     build, indirect_items, indirect_pairs, is_indirect, item, Overrides, Value)
 from dxl_servo_driver.models.names import OTHER_MODELS
 
-__all__ = ['ALL_MODELS', 'FAMILIES', 'model_for', 'model_named', 'SEED_DIFFERENCES',
+__all__ = ['ALL_MODELS', 'FAMILIES', 'MANUAL_DIFFERENCES', 'model_for', 'model_named',
            'SUPPORTED', 'unsupported_reason']
 
 FAMILIES: tuple[str, ...] = (
     'XM430/XH430/XD430', 'XM540/XH540/XD540', 'XW430/XW540', 'XL430/2XL430/XC430/2XC430',
     'XL330/XC330')
 
-SIX_MODES: dict[str, int] = dict(ct.OPERATING_MODES)
+SIX_MODES: dict[str, int] = modes.numbers(*modes.NAMES)
 # XL430/XC430 have no current sensing, hence no current nor current-based position mode.
-FOUR_MODES: dict[str, int] = {'velocity': 1, 'position': 3, 'extended_position': 4, 'pwm': 16}
-BAUDS_4M5: dict[int, int] = dict(ct.BAUD_RATES)
+FOUR_MODES: dict[str, int] = modes.numbers('velocity', 'position', 'extended_position', 'pwm')
+BAUDS_4M5: dict[int, int] = dict(xm430.BAUD_RATES)
 # The X330 stops at 4 Mbps: its Baud Rate register takes 0..6.
-BAUDS_4M: dict[int, int] = {value: bps for value, bps in ct.BAUD_RATES.items() if value <= 6}
+BAUDS_4M: dict[int, int] = {value: bps for value, bps in xm430.BAUD_RATES.items() if value <= 6}
 
-SEED_FIRMWARE = ct.FIRMWARE_VERSION
+MANUAL_FIRMWARE = xm430.FIRMWARE_VERSION
 # Protocol 2.0 e-manual, Fast Sync Read (0x8A): X430/X540 from firmware v45 (not the 2XL and
 # 2XC), X330 from v46.
 FAST_SYNC_X = 45
@@ -43,9 +43,9 @@ FAST_SYNC_X330 = 46
 # later ones (dynamixel_hardware_interface picks *_fwNN for firmware <= NN).
 X330_NEW_INDIRECT_FIRMWARE = 53
 
-GAIN_MAX = 16_383          # e-manual gain range (the seed allows 0..32,767, kept for 1020/1030)
+GAIN_MAX = 16_383          # e-manual gain range (the manual allows 0..32,767, kept for 1020/1030)
 PROFILE_MAX = 32_767       # e-manual: time-based profiles count milliseconds up to this
-LAST_RAM_X = ct.TABLE_SIZE - 1
+LAST_RAM_X = xm430.TABLE_SIZE - 1
 
 
 def _drive_mode(maximum: int) -> Item:
@@ -87,7 +87,7 @@ def _external_ports() -> list[Item]:
 
 @dataclass(frozen=True)
 class _Family:
-    """What a family changes in the seed's layout, and its modes, bauds and features."""
+    """What a family changes in the manual's layout, and its modes, bauds and features."""
 
     remove: tuple[str, ...]
     add: tuple[Item, ...]
@@ -98,7 +98,7 @@ class _Family:
 
 
 # Every family leaves out Acceleration Limit: neither the SDK model files nor the current
-# e-manual have it (older e-manual revisions do); only the seed's 1020/1030 keep it.
+# e-manual have it (older e-manual revisions do); only the manual's 1020/1030 keep it.
 _COMMON_REMOVE = ('acceleration_limit',)
 _COMMON_ADD = (SECONDARY_ID, STARTUP_CONFIGURATION, BUS_WATCHDOG, BACKUP_READY)
 
@@ -160,7 +160,7 @@ def _tuning_overrides(t: _Tuning, input_voltage: int) -> dict[str, dict[str, Val
         limit, milliamps = t.current
         unit = f'{milliamps:g} mA'
         overrides['current_limit'] = {'initial': limit, 'maximum': limit, 'unit': unit}
-        # Goal Current powers on at Current Limit, as in the seed.
+        # Goal Current powers on at Current Limit, as in the XM430 manual.
         overrides['goal_current'] = {'initial': limit, 'minimum': -limit, 'maximum': limit,
                                      'unit': unit}
         overrides['present_current'] = {'unit': unit}
@@ -178,9 +178,9 @@ def _physics(gear: float, nominal: float, rows: tuple[tuple[float, float, float,
 
 def _model(number: int, name: str, family: _Family, tuning: _Tuning, physics: Physics, *,
            banks: tuple[tuple[int, int, int], ...] = ((168, 224, 28), (578, 634, 28)),
-           last_ram: int = LAST_RAM_X, firmware: int = SEED_FIRMWARE,
+           last_ram: int = LAST_RAM_X, firmware: int = MANUAL_FIRMWARE,
            min_firmware: int = 0) -> Model:
-    """Return one model: the seed's layout changed by its family and its own figures."""
+    """Return one model: the manual's layout changed by its family and its own figures."""
     pairs = indirect_pairs(*banks)
     add: list[Item] = [*family.add, *indirect_items(pairs, last_ram)]
     if tuning.pwm_slope is not None:
@@ -193,7 +193,7 @@ def _model(number: int, name: str, family: _Family, tuning: _Tuning, physics: Ph
         'model_number': {'initial': number},
         'firmware_version': {'initial': firmware},
     }
-    base = (seed for seed in ct.ITEMS if not is_indirect(seed.name))
+    base = (each for each in xm430.ITEMS if not is_indirect(each.name))
     items = build(base, remove=family.remove, add=add, override=override)
     milliamps = tuning.current[1] if tuning.current is not None else None
     return Model(
@@ -204,22 +204,21 @@ def _model(number: int, name: str, family: _Family, tuning: _Tuning, physics: Ph
         else None,
         velocity_unit_rpm=0.229, pulses_per_rev=4096, position_zero_raw=2048,
         pwm_full_raw=885, voltage_unit_v=0.1, indirect=pairs,
-        hardware_error_bits=dict(ct.HARDWARE_ERROR_BITS), physics=physics,
+        hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
         min_firmware=min_firmware, fast_sync_read_firmware=family.fast_sync_read_firmware)
 
 
-def _seed_model(number: int, name: str, physics: Physics) -> Model:
-    """Return 1020 or 1030: the seed's items unchanged plus what the e-manual adds."""
-    items = build(ct.ITEMS, add=(_drive_mode(13), *_COMMON_ADD),
+def _manual_model(number: int, name: str, physics: Physics) -> Model:
+    """Return 1020 or 1030: the XM430 manual's items unchanged plus what the e-manual adds."""
+    items = build(xm430.ITEMS, add=(_drive_mode(13), *_COMMON_ADD),
                   override={'model_number': {'initial': number}})
-    pairs = tuple((ct.indirect_address_address(n), ct.indirect_data_address(n))
-                  for n in range(1, ct.INDIRECT_COUNT + 1))
+    pairs = xm430.INDIRECT_PAIRS
     return Model(
         number=number, name=name, family=name.split('-')[0], items=items,
         modes=dict(SIX_MODES), bauds=dict(BAUDS_4M5), current_unit_a=2.69e-3,
         load_unit_ratio=None, velocity_unit_rpm=0.229, pulses_per_rev=4096,
         position_zero_raw=2048, pwm_full_raw=885, voltage_unit_v=0.1, indirect=pairs,
-        hardware_error_bits=dict(ct.HARDWARE_ERROR_BITS), physics=physics,
+        hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
         fast_sync_read_firmware=FAST_SYNC_X)
 
 
@@ -251,14 +250,15 @@ _V24 = (110, 300)
 
 _MODELS: list[Model] = [
     # --- XM430/XH430/XD430 ---------------------------------------------------------------
-    _seed_model(1020, 'XM430-W350', _physics(
+    _manual_model(1020, 'XM430-W350', _physics(
         353.5, 12.0, ((11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)),
-        'seed manual (identical to the e-manual XM430-W350 specifications)')),
-    # The seed is model 1030 and the authority for it: its figures win over the e-manual's
-    # XM430-W210 ones (212.6:1, 3.0 N.m at 2.3 A, 77 rpm at 12 V), see SEED_DIFFERENCES.
-    _seed_model(1030, 'XM430-W210', _physics(
+        'XM430 manual (identical to the e-manual XM430-W350 specifications)')),
+    # The XM430 manual's is model 1030 and the authority for it: its figures win over the
+    # e-manual's XM430-W210 ones (212.6:1, 3.0 N.m at 2.3 A, 77 rpm at 12 V), see
+    # MANUAL_DIFFERENCES.
+    _manual_model(1030, 'XM430-W210', _physics(
         353.5, 12.0, ((11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)),
-        'seed manual (model 1030; the e-manual XM430-W210 specifications differ: 212.6:1, '
+        'XM430 manual (model 1030; the e-manual XM430-W210 specifications differ: 212.6:1, '
         '2.7/3.0/3.7 N.m, 70/77/95 rpm)')),
     _model(1000, 'XH430-W350', X430, _Tuning(80, _X430_12V, (648, 2.69), 130,
                                              (1920, 100, 0, 0, 900)), _physics(
@@ -477,35 +477,35 @@ def model_named(name: str) -> Model:
     return model_for(number)
 
 
-SEED_DIFFERENCES: tuple[str, ...] = (
-    'The seed has no Drive Mode (address 10, 1 byte); 1020 and 1030 get it from the SDK '
+MANUAL_DIFFERENCES: tuple[str, ...] = (
+    'The manual has no Drive Mode (address 10, 1 byte); 1020 and 1030 get it from the SDK '
     'model file and the e-manual: initial 0, bits 0, 2 and 3 valid (0..13).',
-    'The seed has no Secondary(Shadow) ID (address 12, 1 byte); added from the model file '
+    'The manual has no Secondary(Shadow) ID (address 12, 1 byte); added from the model file '
     'and the e-manual: initial 255, 0..252 usable, anything above 252 switches it off.',
-    'The seed has no Bus Watchdog (address 98, 1 byte); added from the model file and the '
+    'The manual has no Bus Watchdog (address 98, 1 byte); added from the model file and the '
     'e-manual: initial 0 (off), 1..127 in 20 ms steps, 255 (-1) reports a tripped watchdog.',
-    'The seed has no Startup Configuration (address 60) and no Backup Ready (address 147); '
+    'The manual has no Startup Configuration (address 60) and no Backup Ready (address 147); '
     'the current e-manual has both (firmware v45 on) but the SDK model file has neither. '
     'Added from the e-manual.',
-    'The seed has Acceleration Limit (address 40, 4 bytes, initial 32,767); the SDK model '
+    'The manual has Acceleration Limit (address 40, 4 bytes, initial 32,767); the SDK model '
     'file and the current e-manual do not (older e-manual revisions do). Kept for 1020 and '
-    '1030 because the seed is the authority for them; every other model leaves it out and '
+    '1030 because the manual is the authority for them; every other model leaves it out and '
     'its profile_acceleration has no limit register.',
-    "The seed names address 13 'Protocol Version'; the SDK model file names it 'Protocol "
-    "Type'. The seed's name protocol_version is kept.",
-    'The seed gives Velocity Limit initial 480; the e-manual gives 350 for the XM430-W350 '
-    'and 330 for the XM430-W210. The seed value is kept for both.',
-    'The seed gives Velocity P Gain initial 50; the e-manual gives 100 for both XM430. The '
-    'seed value is kept.',
-    'The seed allows gains up to 32,767; the e-manual gives 0..16,383. The seed range is '
+    "The manual names address 13 'Protocol Version'; the SDK model file names it 'Protocol "
+    "Type'. The manual's name protocol_version is kept.",
+    'The manual gives Velocity Limit initial 480; the e-manual gives 350 for the XM430-W350 '
+    "and 330 for the XM430-W210. The manual's value is kept for both.",
+    'The manual gives Velocity P Gain initial 50; the e-manual gives 100 for both XM430. The '
+    "manual's value is kept.",
+    "The manual allows gains up to 32,767; the e-manual gives 0..16,383. The manual's range is "
     'kept for 1020 and 1030, the e-manual one used elsewhere.',
-    'The seed bounds Profile Velocity by Velocity Limit (0..1,023); the e-manual gives '
+    'The manual bounds Profile Velocity by Velocity Limit (0..1,023); the e-manual gives '
     '0..32,767, since a time-based profile (Drive Mode bit 2) counts milliseconds there. '
-    'The seed range is kept for 1020 and 1030, the e-manual one used elsewhere.',
-    "The seed's Model Number initial is 1030; model 1020 reports 1020.",
-    "The seed's datasheet figures (353.5:1, 4.1 N.m at 2.3 A and 46 rpm at 12 V) are the "
+    "The manual's range is kept for 1020 and 1030, the e-manual one used elsewhere.",
+    "The manual's Model Number initial is 1030; model 1020 reports 1020.",
+    "The manual's datasheet figures (353.5:1, 4.1 N.m at 2.3 A and 46 rpm at 12 V) are the "
     'XM430-W350 ones although its model number is 1030 (XM430-W210, 212.6:1, 3.0 N.m at '
-    '2.3 A, 77 rpm at 12 V in the e-manual). The seed is the authority for 1030: both 1020 '
+    '2.3 A, 77 rpm at 12 V in the e-manual). The manual is the authority for 1030: both 1020 '
     'and 1030 use its figures (torque constant 4.1/2.3 N.m/A, simulator physics).',
     "The SDK model file's 'Indirect Address Write/Read' and 'Indirect Data Write/Read' rows "
     'are aliases of Indirect Address/Data 1 and 29, not further items.',

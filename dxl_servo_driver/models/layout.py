@@ -1,18 +1,17 @@
 """
 Building control tables from a shared base: removals, additions and per-item overrides.
 
-Every family starts from the seed's layout (control_table.ITEMS) and states only how it
+Every family starts from the XM430 manual's layout (models.xm430.ITEMS) and states only how it
 differs, so the numbers the families share live in one place.
 """
 
 from dataclasses import replace
 from typing import Any, Iterable, Mapping, TypeAlias
 
-from dxl_servo_driver import control_table as ct
-from dxl_servo_driver.control_table import Item
+from dxl_servo_driver.models.base import Item
 
-EEPROM_END = ct.EEPROM_END
-U8, U16 = 0xFF, 0xFFFF
+EEPROM_END = 64  # addresses 0..63 are EEPROM (written only with torque off), 64.. RAM
+U8 = 0xFF
 FIRST_RAM_ADDRESS = EEPROM_END  # indirect addresses may point anywhere in RAM only
 
 # A value an override may set on an Item field.

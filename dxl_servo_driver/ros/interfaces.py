@@ -9,6 +9,7 @@ import time
 from typing import Any, Callable, List, Protocol
 
 from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import Task
 from dxl_servo_driver_msgs.msg import GripperCommand, JointCommand
 from dxl_servo_driver_msgs.srv import (
@@ -16,7 +17,6 @@ from dxl_servo_driver_msgs.srv import (
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-COMMAND_KINDS = ('position', 'velocity', 'current', 'pwm')
 REBOOT_WAIT_S = 10.0   # a reboot service waits this long for its servos to come back
 NOT_ACTIVE = 'the node is not active (lifecycle state)'
 
@@ -61,7 +61,7 @@ class Interfaces:
         self.subscriptions = [
             host.create_subscription(JointCommand, f'~/commands/{kind}',
                                      self._command_callback(kind), 10)
-            for kind in COMMAND_KINDS]
+            for kind in modes.COMMAND_KINDS]
         # Arms: a trajectory executed in the driver's cycle, and what ros2_control's topic
         # bridge (JointStateTopicSystem) publishes as its commands.
         self.subscriptions.append(host.create_subscription(
@@ -74,7 +74,7 @@ class Interfaces:
             GripperCommand, '~/gripper', self._refusable('gripper', host.gripper_command), 10))
         self.services = [
             host.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
-            for kind in COMMAND_KINDS]
+            for kind in modes.COMMAND_KINDS]
         self.services += [
             host.create_service(SetOperatingMode, '~/set_operating_mode', self._on_set_mode),
             host.create_service(SetTorque, '~/set_torque', self._on_set_torque),

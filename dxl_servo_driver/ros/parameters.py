@@ -10,7 +10,7 @@ cleanup), and the next configure uses them; while configured they are refused wi
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver import control_table as ct
+from dxl_servo_driver.models import modes
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType)
 from rclpy.node import Node
@@ -64,7 +64,7 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
             ('id', joint.servo_id, "Dynamixel id of the joint's servo (0..252).",
              ParameterType.PARAMETER_INTEGER),
             ('operating_mode', joint.operating_mode,
-             f'Operating mode at start: one of {", ".join(ct.OPERATING_MODES)}.',
+             f'Operating mode at start: one of {", ".join(modes.NAMES)}.',
              ParameterType.PARAMETER_STRING),
         ]
         if joint.torque_constant_nm_per_a is not None:

@@ -51,7 +51,7 @@ import math
 import struct
 from typing import Optional, Protocol
 
-from dxl_servo_driver.models import Model
+from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.sim import motor
 from dxl_servo_driver.sim.memory import SEED_MODEL
 from dxl_servo_driver.sim.velocity_profile import (
@@ -63,13 +63,14 @@ IN_POSITION_PULSE = 20
 OVERLOAD_TIME_S = 1.0
 OVERLOAD_CURRENT_FRACTION = 0.5
 
-MODE_CURRENT = 0
-MODE_VELOCITY = 1
-MODE_POSITION = 3
-MODE_EXTENDED_POSITION = 4
-MODE_CURRENT_BASED_POSITION = 5
-MODE_PWM = 16
-POSITION_MODES = (MODE_POSITION, MODE_EXTENDED_POSITION, MODE_CURRENT_BASED_POSITION)
+# The register values of the modes (models.modes is their one table).
+MODE_CURRENT = modes.BY_NAME['current'].number
+MODE_VELOCITY = modes.BY_NAME['velocity'].number
+MODE_POSITION = modes.BY_NAME['position'].number
+MODE_EXTENDED_POSITION = modes.BY_NAME['extended_position'].number
+MODE_CURRENT_BASED_POSITION = modes.BY_NAME['current_based_position'].number
+MODE_PWM = modes.BY_NAME['pwm'].number
+POSITION_MODES = modes.POSITION_NUMBERS
 
 MOVING_STATUS_FOLLOWING_ERROR = 0x08
 MOVING_STATUS_PROFILE_ONGOING = 0x02

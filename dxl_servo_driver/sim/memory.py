@@ -17,9 +17,10 @@ Two ways in:
 import struct
 from typing import Callable
 
-from dxl_servo_driver.control_table import (
-    EEPROM_END, EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, Item, TABLE_SIZE)
-from dxl_servo_driver.models import Model, model_for, ModelError
+from dxl_servo_driver.models import Item, Model, model_for, ModelError
+from dxl_servo_driver.models.layout import EEPROM_END
+from dxl_servo_driver.models.xm430 import (
+    EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, TABLE_SIZE)
 from dxl_servo_driver.protocol import ErrorCode
 
 _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',

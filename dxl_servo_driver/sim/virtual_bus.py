@@ -40,8 +40,8 @@ import time
 import tty
 from typing import Callable, NoReturn, Sequence, TextIO
 
-from dxl_servo_driver import control_table, protocol
-from dxl_servo_driver.models import Model, model_for, model_named, ModelError
+from dxl_servo_driver import protocol
+from dxl_servo_driver.models import Model, model_for, model_named, ModelError, xm430
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
@@ -114,7 +114,7 @@ class GoalTracer:
         self._out = out
         self._bus = bus
         self._parser = protocol.StreamParser()
-        goal = control_table.BY_NAME['goal_position']
+        goal = model_for(xm430.MODEL_NUMBER).item('goal_position')
         self._address = goal.address
         self._goal = list(range(goal.address, goal.address + goal.size))
         # id -> the servo's memory: this runs in the simulator's I/O thread, on every write,
@@ -351,7 +351,7 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    bauds = sorted(control_table.BAUD_RATES.values())
+    bauds = sorted(xm430.BAUD_RATES.values())
     parser = _OneLineParser(prog='virtual_bus',
                             description='Simulated Dynamixel servos on a pseudo-terminal.')
     parser.add_argument('--ids', type=int, nargs='+', required=True, help='servo ids (0..252)')
@@ -415,7 +415,7 @@ def _servo_models(ids: Sequence[int], tokens: Sequence[str] | None,
                   firmware: int | None) -> dict[int, Model]:
     """Return id -> model from --models (one for all ids, or one per id); ValueError if bad."""
     if tokens is None:
-        tokens = [str(control_table.MODEL_NUMBER)]
+        tokens = [str(xm430.MODEL_NUMBER)]
     if len(tokens) not in (1, len(ids)):
         raise ValueError(f'--models: give one model for every id or one per id '
                          f'({len(ids)} ids, {len(tokens)} models)')
