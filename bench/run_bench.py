@@ -38,7 +38,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
 sys.path.insert(0, str(ROOT))
 
-from dxl_servo_driver import model  # noqa: E402 - after the path set-up above
+from dxl_servo_driver import state_block  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.models import model_for  # noqa: E402
 from dxl_servo_driver.models.units import units_for  # noqa: E402
 from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402
@@ -259,20 +259,21 @@ class NodeUnderTest:
 def wire_bytes(variant: str, n: int, rate_hz: float, writes_per_cycle: float) -> float:
     """Return the average bytes one cycle of a variant puts on the wire."""
     if variant == 'sdk_baseline':
-        return model.sync_read_bytes(n, SDK_READ_BYTES) + model.sync_write_bytes(n, WRITE_BYTES)
-    block = model.BLOCK_SHAPE
+        return (state_block.sync_read_bytes(n, SDK_READ_BYTES)
+                + state_block.sync_write_bytes(n, WRITE_BYTES))
+    block = state_block.BLOCK_SHAPE
     # Every read of the node's cycle carries the tick (each sample is dated).
     if variant in FAST_VARIANTS:
-        read = model.fast_sync_read_bytes(n, block.tagged_size)
+        read = state_block.fast_sync_read_bytes(n, block.tagged_size)
     else:
-        read = model.sync_read_bytes(n, block.tagged_size)
+        read = state_block.sync_read_bytes(n, block.tagged_size)
     if variant in ('bus', 'bus_fast'):
-        return read + model.sync_write_bytes(n, WRITE_BYTES)
+        return read + state_block.sync_write_bytes(n, WRITE_BYTES)
     # The node reads the whole block HEALTH_RATE_HZ times a second and writes only when a
     # command arrived.
     full_share = min(1.0, HEALTH_RATE_HZ / rate_hz) if rate_hz else 0.0
     extra = full_share * n * (block.size - block.tagged_size)
-    return read + extra + writes_per_cycle * model.sync_write_bytes(n, WRITE_BYTES)
+    return read + extra + writes_per_cycle * state_block.sync_write_bytes(n, WRITE_BYTES)
 
 
 def command_latencies(published: List[Tuple[float, int]],
@@ -409,8 +410,8 @@ def two_buses(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             node.close()
         for bus in buses:
             bus.close()
-    limit = 1.0 / ((model.sync_read_bytes(n, model.BLOCK_SHAPE.tagged_size)
-                    + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud)
+    limit = 1.0 / ((state_block.sync_read_bytes(n, state_block.BLOCK_SHAPE.tagged_size)
+                    + state_block.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud)
     return [{'case': f'two buses, bus {index}', 'n': n, 'baud': baud,
              'alone_hz': round(statistics.mean(alone[index]), 1),
              'together_hz': round(statistics.mean(together[index]), 1),
@@ -437,8 +438,8 @@ def adapter_latency(n: int, baud: int, latency_ms: float,
         if node is not None:
             node.close()
         bus.close()
-    bus_s = (model.sync_read_bytes(n, model.BLOCK_SHAPE.tagged_size)
-             + model.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud
+    bus_s = (state_block.sync_read_bytes(n, state_block.BLOCK_SHAPE.tagged_size)
+             + state_block.sync_write_bytes(n, WRITE_BYTES)) * BITS_PER_BYTE / baud
     allowed = 1.0 / (bus_s + latency_ms / 1000.0)
     rate = statistics.mean(rates)
     return {'case': f'adapter latency {latency_ms:g} ms', 'n': n, 'baud': baud,
@@ -465,7 +466,7 @@ def crc_comparison(n: int = 12, rounds: int = 5, cycles: int = 2000) -> Dict[str
     implementations in this process, interleaved round by round, the best round of each kept.
     """
     from dxl_servo_driver import protocol
-    replies = [protocol.encode_status(servo_id, 0, bytes(model.BLOCK_SHAPE.tagged_size))[:-2]
+    replies = [protocol.encode_status(servo_id, 0, bytes(state_block.BLOCK_SHAPE.tagged_size))[:-2]
                for servo_id in range(1, n + 1)]
     timings: Dict[str, List[float]] = {'compiled': [], 'python': []}
     functions = {'compiled': protocol.crc16, 'python': protocol.crc16_python}

@@ -50,11 +50,12 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
              fast: bool = False) -> Dict[str, float]:
     """Run the driver's bus layer as the node's cycle does, without ROS (fast: Fast Sync Read)."""
     sys.path.insert(0, '.')
-    from dxl_servo_driver import model
+    from dxl_servo_driver import state_block
+    from dxl_servo_driver.driver.clock import TickClock
     from dxl_servo_driver.bus import Bus
     from dxl_servo_driver.serial_port import open_port
     from dxl_servo_driver.models import model_for
-    block = model.state_block(model_for(1030), 'present_current')
+    block = state_block.state_block(model_for(1030), 'present_current')
     bus = Bus(open_port(port_name, baud), baud, latency_timer_s=0.0, return_delay_s=0.0)
     ids = list(range(1, n + 1))
     for servo_id in ids:
@@ -68,7 +69,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     length = block.tagged_size
     decode = block.decode_tagged
     tick = block.index['realtime_tick']
-    clocks = {servo_id: model.TickClock() for servo_id in ids}
+    clocks = {servo_id: TickClock() for servo_id in ids}
     linger = False
     while time.monotonic() - wall0 < seconds:
         result = bus.end_sync_read(bus.begin_sync_read(block.read_address, length, ids, fast,

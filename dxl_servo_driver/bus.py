@@ -15,7 +15,7 @@ looks like the answer to this one. The bus therefore keeps a "dirty" flag for a 
 anomaly (a timeout, a discarded or corrupted reply, bytes waiting before a request): while it
 is set, one-off transactions read on to their deadline and take the last matching reply (replies
 leave the bus in order), and the cycle's state reads carry the servos' Realtime Tick so the
-caller can date every sample (see model.TickClock).
+caller can date every sample (see driver/clock.py).
 
 Every wait is a blocking read with an absolute deadline on the monotonic clock, computed from
 the bytes expected, the baud rate, the servos' Return Delay Time and the USB adapter's latency

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 import math
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
-from dxl_servo_driver import model
 from dxl_servo_driver import models
+from dxl_servo_driver import registers
 from dxl_servo_driver.errors import ConfigurationError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.protocol import MAX_ID
@@ -351,19 +351,19 @@ def _check_registers(joint: JointConfig, table: models.Model,
                 other.has(register) for other in models.ALL_MODELS):
             continue
         try:
-            item = model.writable_register(table, register)
-            model.check_range(item, value)
+            item = registers.writable_register(table, register)
+            registers.check_range(item, value)
         except ValueError as exc:
             return key, str(exc)
         checked[register] = value
     # Values bounded by another register must respect it, as the servo would refuse them (data
-    # limit error) at configure: the rules of model.check_register_set, against the file's
+    # limit error) at configure: the rules of registers.check_register_set, against the file's
     # values where it sets them and the table's initial values elsewhere.
     values.update(checked)
     # The lower bound of a crossed pair is named (min_position_limit, not max_...).
     for register in sorted(checked, key=lambda r: r.startswith('max_')):
         try:
-            model.check_register_set(values, register, checked[register], joint.operating_mode)
+            registers.check_register_set(values, register, checked[register], joint.operating_mode)
         except ValueError as exc:
             return f'{joint.name}.registers.{register}', str(exc)
     return None

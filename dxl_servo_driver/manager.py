@@ -18,7 +18,7 @@ import threading
 import time
 from typing import Any, Callable, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import model
+from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.cycle import Cycle
@@ -214,13 +214,13 @@ class Manager:
         for servo in self.order:
             servo.tick.reset()
 
-    def bus_budget(self) -> model.BusBudget:
+    def bus_budget(self) -> state_block.BusBudget:
         """Return what one cycle costs on this bus."""
         bus = self._link.bus
         rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / RETURN_DELAY_UNIT_S))
-        return model.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
-                                rdt_raw, self.config.latency_timer / 1000.0,
-                                fast=self._cycle.fast)
+        return state_block.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
+                                      rdt_raw, self.config.latency_timer / 1000.0,
+                                      fast=self._cycle.fast)
 
     @property
     def read_mode_in_use(self) -> str:

@@ -4,7 +4,7 @@ import struct
 import time
 from typing import Tuple
 
-from dxl_servo_driver import model
+from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommTimeout, CorruptReply
 from dxl_servo_driver.models import model_for
@@ -14,7 +14,7 @@ from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest
 
 BAUD = 1_000_000
-BLOCK = model.state_block(model_for(1030), 'present_current')
+BLOCK = state_block.state_block(model_for(1030), 'present_current')
 IDS = (1, 2, 3)
 
 

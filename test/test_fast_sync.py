@@ -5,9 +5,11 @@ import time
 from typing import Dict, Iterator, List, Tuple
 
 from adapter_faults import FaultyPort
-from dxl_servo_driver import model, protocol
+from dxl_servo_driver import protocol
+from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import validate
+from dxl_servo_driver.driver import clock
 from dxl_servo_driver.driver.cycle import FAST_EMPTY_LIMIT
 from dxl_servo_driver.errors import CommTimeout, CorruptReply
 from dxl_servo_driver.manager import Manager
@@ -20,7 +22,7 @@ import pytest
 from test_manager import BAUD as RIG_BAUD, params, Rig, TapPort
 
 BAUD = 1_000_000
-BLOCK = model.state_block(model_for(1030), 'present_current')
+BLOCK = state_block.state_block(model_for(1030), 'present_current')
 IDS = (1, 2, 3)
 TICK = BLOCK.index['realtime_tick']
 
@@ -189,7 +191,7 @@ def test_a_misbehaving_adapter_never_yields_a_stale_part(
     """
     sim, port, bus = faulty
     port.set(**faults)
-    clocks = {servo_id: model.TickClock() for servo_id in IDS}
+    clocks = {servo_id: clock.TickClock() for servo_id in IDS}
     seen: Dict[int, set] = {servo_id: set() for servo_id in IDS}
     taken = refused = 0
     for _ in range(80):
@@ -260,7 +262,7 @@ def test_read_mode_chooses_the_read_by_firmware(read_mode: str, firmware: Dict[i
             assert servo.state is not None
             assert abs(servo.state[0] - rig.reg(servo.servo_id, 'present_position')) <= 2
         budget = manager.bus_budget()
-        sync_budget = model.bus_budget(3, RIG_BAUD, 0, 0.001)
+        sync_budget = state_block.bus_budget(3, RIG_BAUD, 0, 0.001)
         assert (budget.bytes_per_cycle < sync_budget.bytes_per_cycle) is (expected == 'fast_sync')
     finally:
         manager.close()

@@ -10,7 +10,8 @@ import io
 import struct
 from typing import Any, Dict, List, Tuple
 
-from dxl_servo_driver import model, protocol
+from dxl_servo_driver import protocol
+from dxl_servo_driver import state_block
 from dxl_servo_driver.config import validate
 from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.models import ALL_MODELS, model_for, modes
@@ -27,11 +28,11 @@ SLOT_ADDRESS = 246   # indirect data 23: after the 22-byte state block on every 
 _GOALS = {'goal_position': -123456, 'goal_velocity': -321, 'goal_current': -77, 'goal_pwm': 555}
 
 
-def _effort(table: model.Model) -> str:
+def _effort(table: state_block.Model) -> str:
     return 'present_current' if table.has('present_current') else 'present_load'
 
 
-def _replay(table: model.Model, slot: model.GoalSlot, data: bytes) -> Dict[str, int]:
+def _replay(table: state_block.Model, slot: state_block.GoalSlot, data: bytes) -> Dict[str, int]:
     """Write data through the slot's map as the servo does; return the registers it set whole."""
     memory: Dict[int, int] = {}
     for offset, byte in enumerate(data):
@@ -53,11 +54,11 @@ def _replay(table: model.Model, slot: model.GoalSlot, data: bytes) -> Dict[str, 
 
 
 @pytest.mark.parametrize('table', ALL_MODELS, ids=lambda t: t.label)
-def test_every_write_length_sets_the_slot_registers_whole(table: model.Model) -> None:
-    block = model.state_block(table, _effort(table))
+def test_every_write_length_sets_the_slot_registers_whole(table: state_block.Model) -> None:
+    block = state_block.state_block(table, _effort(table))
     for mode in table.modes:
-        slot = model.goal_slot(table, block, mode)
-        if len(table.indirect) < block.size + model.GOAL_SLOT_SIZE:
+        slot = state_block.goal_slot(table, block, mode)
+        if len(table.indirect) < block.size + state_block.GOAL_SLOT_SIZE:
             assert slot is None   # the X330 before firmware 53: no room after its block
             continue
         assert slot is not None and slot.data_address == SLOT_ADDRESS
@@ -68,8 +69,8 @@ def test_every_write_length_sets_the_slot_registers_whole(table: model.Model) ->
             # A write as long as a goal needs sets that goal whole (and those before it).
             replayed = _replay(table, slot, slot.pack(goals, length))
             assert replayed[name] == goals[name]
-        assert _replay(table, slot, slot.pack(goals, model.GOAL_SLOT_SIZE)) == goals
-        assert len(slot.map_bytes()) == 2 * model.GOAL_SLOT_SIZE
+        assert _replay(table, slot, slot.pack(goals, state_block.GOAL_SLOT_SIZE)) == goals
+        assert len(slot.map_bytes()) == 2 * state_block.GOAL_SLOT_SIZE
 
 
 @pytest.fixture
@@ -217,7 +218,7 @@ def test_a_slot_that_does_not_read_back_is_given_up_for_register_writes(rig: Rig
 class MixedRig(Rig):
     """The manager tests' rig on a bus of other models."""
 
-    def __init__(self, models: Dict[int, model.Model], firmware: Dict[int, int]) -> None:
+    def __init__(self, models: Dict[int, state_block.Model], firmware: Dict[int, int]) -> None:
         self.sim = SimBus(tuple(models), boot_time_s=0.02, models=models, firmware=firmware)
         configure_servos(self.sim, BAUD, None)
         self.tap = TapPort(SimPortHandler(self.sim, 'sim', BAUD))
@@ -252,9 +253,9 @@ def test_the_benchmark_goal_tracer_follows_writes_through_the_slot() -> None:
     out = io.StringIO()
     tracer = GoalTracer(out, sim)
     table = model_for(1020)
-    block = model.state_block(table, 'present_current')
-    slot = model.goal_slot(table, block, 'position')
-    current = model.goal_slot(table, block, 'current')
+    block = state_block.state_block(table, 'present_current')
+    slot = state_block.goal_slot(table, block, 'position')
+    current = state_block.goal_slot(table, block, 'current')
     assert slot is not None and current is not None
     for servo_id, mapped in ((1, slot), (2, current)):
         sim.feed(protocol.encode_instruction(servo_id, Instruction.WRITE, struct.pack(

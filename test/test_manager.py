@@ -9,7 +9,7 @@ import math
 import time
 from typing import Any, Callable, Dict, List, Tuple
 
-from dxl_servo_driver import model
+from dxl_servo_driver import state_block
 from dxl_servo_driver.config import DriverConfig, validate
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.manager import Manager, ManagerError
@@ -22,7 +22,7 @@ from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest
 
 SEED = units_for(model_for(1030))
-SEED_BLOCK = model.state_block(model_for(1030), 'present_current')
+SEED_BLOCK = state_block.state_block(model_for(1030), 'present_current')
 # The block's fields by register name (effort is present_current on the seed's model).
 STATE_NAMES = tuple(SEED_BLOCK.register(name) for name in SEED_BLOCK.names)
 

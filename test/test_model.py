@@ -2,7 +2,7 @@
 
 import math
 
-from dxl_servo_driver import model
+from dxl_servo_driver import state_block
 from dxl_servo_driver.models import ALL_MODELS, Model, model_for, modes, xm430
 from dxl_servo_driver.models.units import units_for
 from hypothesis import given, strategies as st
@@ -88,7 +88,7 @@ def test_load_models_publish_effort_from_present_load() -> None:
 @pytest.mark.parametrize('table', ALL_MODELS, ids=lambda m: f'{m.name}-fw{m.min_firmware}')
 def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
     effort = 'present_current' if table.has('present_current') else 'present_load'
-    block = model.state_block(table, effort)
+    block = state_block.state_block(table, effort)
     targets = block.indirect_map()
     assert len(targets) == block.size
     expected = []
@@ -113,7 +113,7 @@ def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
 
 
 def test_state_block_decodes_signed_values() -> None:
-    block = model.state_block(model_for(1030), 'present_current')
+    block = state_block.state_block(model_for(1030), 'present_current')
     raw = bytearray(block.size)
     values = {'present_position': -5000, 'present_velocity': -7, 'present_current': -300,
               'present_pwm': -885, 'present_input_voltage': 121, 'present_temperature': 41,
@@ -128,16 +128,16 @@ def test_state_block_decodes_signed_values() -> None:
     assert not block.restarted(block.decode(bytes(raw)))
     assert block.restarted(block.decode(bytes(block.size)))
     # The shape the cycle decodes with is every block's.
-    assert model.BLOCK_SHAPE.decode(bytes(raw)) == block.decode(bytes(raw))
+    assert state_block.BLOCK_SHAPE.decode(bytes(raw)) == block.decode(bytes(raw))
 
 
 def test_bus_budget_matches_the_spec_formula() -> None:
     # SPEC section 5: sync read of 10 bytes = (14 + N) + 21 N, sync write of 4 bytes = 14 + 5 N.
     for n in (1, 6, 12, 24):
-        budget = model.bus_budget(n, 4_000_000, read_length=10, write_length=4)
+        budget = state_block.bus_budget(n, 4_000_000, read_length=10, write_length=4)
         assert budget.bytes_per_cycle == (14 + n) + 21 * n + 14 + 5 * n
         assert math.isclose(budget.wire_time_s, budget.bytes_per_cycle * 10 / 4_000_000)
-    slow = model.bus_budget(3, 57600, return_delay_time_raw=250, latency_timer_s=0.016)
+    slow = state_block.bus_budget(3, 57600, return_delay_time_raw=250, latency_timer_s=0.016)
     assert math.isclose(slow.return_delay_s, 3 * 500e-6)
     assert slow.rate_limit_hz < 50.0
 

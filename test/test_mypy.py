@@ -5,7 +5,7 @@ import pathlib
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-CHECKED = ['model.py', 'config.py', 'protocol.py', 'manager.py', 'driver',
+CHECKED = ['state_block.py', 'registers.py', 'config.py', 'protocol.py', 'manager.py', 'driver',
            'serial_port.py', 'termios2.py',
            'bus.py', 'scan.py', 'sim', 'tasks.py', 'models', 'transports.py', 'trajectory.py',
            'commands.py', 'gripper.py']

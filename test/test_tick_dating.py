@@ -1,7 +1,7 @@
 """
 Samples dated by the servos' Realtime Tick: across its wrap, across cleanup, across restarts.
 
-The driver refuses a reply older than its request by the servo's tick (model.TickClock). Its
+The driver refuses a reply older than its request by the servo's tick (driver/clock.py). Its
 offset between tick and host clock is only true while the servo runs on: a configure after a
 cleanup may find a servo that restarted, or (port: sim) a new simulator whose ticks start at 0,
 and a tick wraps every 32.768 s. Each configure, activation and service read here happens
@@ -12,7 +12,7 @@ import time
 from typing import List
 
 from dxl_servo_driver.config import validate
-from dxl_servo_driver.model import TICK_PERIOD_MS, TickClock
+from dxl_servo_driver.driver.clock import TICK_PERIOD_MS, TickClock
 from lifecycle_msgs.msg import Transition
 from node_harness import NodeHarness, sim_params
 import pytest

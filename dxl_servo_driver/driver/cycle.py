@@ -17,7 +17,7 @@ import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from dxl_servo_driver import model
+from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import SyncRead, SyncResult
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.goals import Goals
@@ -79,7 +79,7 @@ class Cycle:
         self._ids: List[Tuple[Servo, int]] = []
         self._reading: Optional[_Reading] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
-        self._groups: List[Tuple[model.StateBlock, List[int]]] = []
+        self._groups: List[Tuple[state_block.StateBlock, List[int]]] = []
         # Fast Sync Read: in use now; given up for good (read_mode auto) after fast reads in a
         # row that brought nothing back, counted here.
         self.fast = False
@@ -99,7 +99,7 @@ class Cycle:
         # in progress (being restored, rebooted, probed) is left out of the cycle's read.
         self._ids = [(servo, servo.servo_id) for servo in self._roster.active()
                      if servo.name not in self._tasks]
-        groups: Dict[Tuple[int, int], Tuple[model.StateBlock, List[int]]] = {}
+        groups: Dict[Tuple[int, int], Tuple[state_block.StateBlock, List[int]]] = {}
         for servo, servo_id in self._ids:
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
@@ -432,6 +432,6 @@ class Cycle:
         return [(address, lengths[address], data) for address, data in writes.items()]
 
 
-def _group_length(block: model.StateBlock, length: int) -> int:
+def _group_length(block: state_block.StateBlock, length: int) -> int:
     """Return the read length of a block: a whole-block read is as long as that model's."""
     return block.size if length >= BLOCK.size else length

@@ -9,8 +9,8 @@ transaction with a message rather than an exception; a lost port is handled on t
 import threading
 from typing import Callable, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import model
 from dxl_servo_driver import models
+from dxl_servo_driver import registers
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.link import Link
@@ -205,8 +205,8 @@ class Services:
             if item is None:
                 return Result(False, reason)
             try:
-                model.writable_register(servo.model, item.name, runtime=True)
-                model.check_range(item, value)
+                registers.writable_register(servo.model, item.name, runtime=True)
+                registers.check_range(item, value)
             except ValueError as exc:
                 return Result(False, str(exc))
             link = self._link
@@ -215,10 +215,10 @@ class Services:
                 try:
                     context = dict(servo.limits)
                     context['homing_offset'] = servo.homing_offset
-                    for other in model.related_registers(servo.model, item.name):
+                    for other in registers.related_registers(servo.model, item.name):
                         if other not in context:
                             context[other] = link.read(servo, other)
-                    model.check_register_set(context, item.name, value, servo.mode)
+                    registers.check_register_set(context, item.name, value, servo.mode)
                     if item.area == 'eeprom' and link.read(servo, 'torque_enable'):
                         return Result(False, f'{item.name} is in EEPROM, which the servo locks '
                                       'while torque is on: call set_torque with enable=false '

@@ -9,18 +9,19 @@ from dataclasses import dataclass, field
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import model
 from dxl_servo_driver import models
+from dxl_servo_driver import state_block
 from dxl_servo_driver import tasks
 from dxl_servo_driver.config import JointConfig
+from dxl_servo_driver.driver.clock import TickClock
 from dxl_servo_driver.errors import Refused
-from dxl_servo_driver.model import GoalSlot, StateBlock, TickClock
 from dxl_servo_driver.models import xm430
 from dxl_servo_driver.models.units import Units, units_for
+from dxl_servo_driver.state_block import GoalSlot, StateBlock
 from dxl_servo_driver.tasks import Steps
 
 Log = Callable[[str], None]
-BLOCK = model.BLOCK_SHAPE   # decodes every model's block; where it lives is Servo.block
+BLOCK = state_block.BLOCK_SHAPE   # decodes every model's block; where it lives is Servo.block
 _I = BLOCK.index
 IDX_POSITION = _I['present_position']
 IDX_VELOCITY = _I['present_velocity']
@@ -105,7 +106,7 @@ class Servo:
         """Take the table, units and state block of a model."""
         self.model = table
         self.units = units_for(table, self.joint.torque_constant_nm_per_a)
-        self.block = model.state_block(table, self.units.effort_register)
+        self.block = state_block.state_block(table, self.units.effort_register)
 
     @classmethod
     def of(cls, joint: JointConfig) -> 'Servo':
@@ -113,7 +114,7 @@ class Servo:
         table = joint.model or models.model_for(xm430.MODEL_NUMBER)
         units = units_for(table, joint.torque_constant_nm_per_a)
         return cls(joint, joint.operating_mode, table, units,
-                   model.state_block(table, units.effort_register))
+                   state_block.state_block(table, units.effort_register))
 
 
 class Roster:

@@ -11,8 +11,8 @@ Present Position are kept in the joint's turn offset. The long activities are st
 
 from typing import Any, Callable, Dict, Generator, List, Optional
 
-from dxl_servo_driver import model
 from dxl_servo_driver import models
+from dxl_servo_driver import state_block
 from dxl_servo_driver.config import check_joint_against, DriverConfig
 from dxl_servo_driver.driver.link import Link
 from dxl_servo_driver.driver.servo import (
@@ -137,11 +137,11 @@ class Setup:
                 servo.limits[name] = link.read(servo, name)
                 yield
 
-    def _slot_for(self, servo: Servo, mode: str) -> Optional[model.GoalSlot]:
+    def _slot_for(self, servo: Servo, mode: str) -> Optional[state_block.GoalSlot]:
         """Return the goal slot the servo's goals go through in a mode (None: per register)."""
         if self.config.write_mode != 'indirect' or servo.slot_refused:
             return None
-        return model.goal_slot(servo.model, servo.block, mode)
+        return state_block.goal_slot(servo.model, servo.block, mode)
 
     def _set_return_delay(self) -> None:
         delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]

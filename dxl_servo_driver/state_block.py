@@ -1,110 +1,19 @@
 """
-What the driver does with a model's table: modes, write rules, state block, tick, bus timing.
+The packed state block, the goal slot and what one cycle costs on the wire.
 
-Pure data and arithmetic over the per-model tables of `models` (SI conversions are in
-models.units); no I/O, no ROS, no SDK.
+Where each model's state lives in its indirect entries (one sync read fetches every servo's
+block), the goal slot after it (one sync write carries every joint's goals whatever its mode),
+and the bytes and time of one cycle on the bus (the rate the bus can carry). Pure data and
+arithmetic over the per-model tables of models/: no I/O.
 """
 
 from dataclasses import dataclass
 import struct
 from typing import Callable, Mapping, Optional
 
-from dxl_servo_driver.models import Item, Model, modes, xm430
+from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
-
-# Registers the driver manages itself; a configuration may not set them.
-DRIVER_OWNED = frozenset(
-    # status_return_level: the driver needs status packets, and the state block's restart
-    # canary is that register.
-    {'torque_enable', 'operating_mode', 'id', 'baud_rate', 'goal_position', 'goal_velocity',
-     'status_return_level'})
-# The indirect map is the driver's too (the state block), whatever a model's count of them.
-DRIVER_OWNED_PREFIXES = ('indirect_address_', 'indirect_data_')
-
-
-def driver_owned(name: str) -> bool:
-    """Return whether the driver manages this register itself."""
-    return name in DRIVER_OWNED or name.startswith(DRIVER_OWNED_PREFIXES)
-
-
-# Registers a configuration or write_register may never set, and why.
-REFUSED_REGISTERS: dict[str, str] = {
-    'protocol_version': 'the driver speaks Protocol 2.0 only: 1 would switch the servo to '
-                        'Protocol 1.0, after which it no longer answers the driver',
-}
-
-
-def writable_register(model: Model, name: str, runtime: bool = False) -> Item:
-    """Return the item a configuration (or write_register) may write, or raise ValueError."""
-    if not model.has(name):
-        raise ValueError(f'unknown register {name!r} (not in the control table of '
-                         f'{model.label})')
-    item = model.item(name)
-    if item.access != 'RW':
-        raise ValueError(f'register {name!r} is read-only')
-    if name in REFUSED_REGISTERS:
-        raise ValueError(f'register {name!r} cannot be written: {REFUSED_REGISTERS[name]}')
-    if driver_owned(name):
-        if runtime:
-            raise ValueError(f'{name} is managed by the driver: use the set_torque / '
-                             'set_operating_mode / command interfaces')
-        raise ValueError(f'register {name!r} is managed by the driver and cannot be configured')
-    return item
-
-
-# value register -> the register that bounds it: the servo refuses a value beyond it (data
-# limit error), so the driver refuses it first, from a file or at run time alike.
-_BOUNDED_BY = {'profile_velocity': 'velocity_limit', 'profile_acceleration': 'acceleration_limit',
-               'goal_pwm': 'pwm_limit', 'goal_current': 'current_limit'}
-# (low, high) pairs that must stay ordered.
-_ORDERED = (('min_position_limit', 'max_position_limit'),
-            ('min_voltage_limit', 'max_voltage_limit'))
-
-
-def related_registers(model: Model, name: str) -> tuple[str, ...]:
-    """Return the registers whose values check_register_set needs to judge a write of name."""
-    related: list[str] = []
-    if name in _BOUNDED_BY and model.has(_BOUNDED_BY[name]):
-        related.append(_BOUNDED_BY[name])
-    for low, high in _ORDERED:
-        if name == low:
-            related.append(high)
-        elif name == high:
-            related.append(low)
-    return tuple(related)
-
-
-def check_register_set(values: Mapping[str, int], name: str, value: int, mode: str) -> None:
-    """
-    Raise ValueError when setting name to value contradicts the servo's other registers.
-
-    values holds the current values of (at least) related_registers(name); mode is the joint's
-    operating mode. The one rule book for parameter files and write_register. A bound the
-    model does not have (no acceleration_limit outside the seed's models) is not checked.
-    """
-    bound = _BOUNDED_BY.get(name)
-    if bound is not None and bound in values and abs(value) > values[bound]:
-        raise ValueError(f'{name} {value} exceeds {bound} ({values[bound]})')
-    for low, high in _ORDERED:
-        if low not in values or high not in values:
-            continue
-        if name == low and value > values[high]:
-            raise ValueError(f'{low} {value} is above {high} ({values[high]})')
-        if name == high and value < values[low]:
-            raise ValueError(f'{high} {value} is below {low} ({values[low]})')
-    if (name == 'homing_offset' and mode == 'position'
-            and abs(value) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT):
-        raise ValueError('position mode ignores a homing offset beyond +-1024 (the manual); '
-                         'use extended_position for larger offsets')
-
-
-def check_range(item: Item, value: int) -> None:
-    """Raise ValueError when a raw value is outside the item's static range."""
-    if not item.minimum <= value <= item.maximum:
-        unit = f' {item.unit}' if item.unit else ''
-        raise ValueError(f'{value} is outside the range of {item.name}: '
-                         f'{item.minimum}..{item.maximum}{unit}')
 
 
 @dataclass(frozen=True)
@@ -292,7 +201,7 @@ def state_block(model: Model, effort_register: str) -> StateBlock:
 
 # The goal slot: the indirect entries after the state block, mapped to the goal registers of
 # the servo's operating mode, so that one sync write at one address carries every joint's goals
-# whatever their modes (SPEC section 2: one sync write per cycle).
+# whatever their modes (one sync write per cycle, README: Goals in one sync write).
 GOAL_SLOT_SIZE = 6
 
 
@@ -355,70 +264,6 @@ def goal_slot(model: Model, block: StateBlock, mode: str) -> Optional[GoalSlot]:
     if any(not model.has(name) for name in modes.BY_NAME[mode].slot):
         return None
     return GoalSlot(model, mode, addresses[0], data[0])
-
-
-TICK_PERIOD_MS = 32768   # Realtime Tick counts milliseconds and wraps after 32767
-
-
-def _wrap_ms(value: float) -> float:
-    """Return value folded into [-TICK_PERIOD_MS / 2, TICK_PERIOD_MS / 2)."""
-    half = TICK_PERIOD_MS / 2
-    return (value + half) % TICK_PERIOD_MS - half
-
-
-class TickClock:
-    """
-    Date a servo's samples by its Realtime Tick and refuse those older than their request.
-
-    A status packet carries no sequence number, so a late reply of an earlier identical request
-    looks like the answer to this one. The servo's tick does tell when the sample was taken.
-    Tick and host clock differ by an unknown offset c = tick - t_host (ms). A reply to a request
-    sent at s and received at r was sampled at some t in [s, r], so tick - r <= c: the largest
-    (tick - r) seen is a lower bound of c (a late reply only lowers tick - r, so it can never
-    raise the bound). A sample whose tick is below s + bound by more than tolerance_ms was taken
-    before its request went out: it answers an earlier request. The bound is relaxed by
-    drift_ppm between samples, for the two clocks' crystals.
-
-    The offset holds only while the servo runs on: whoever stops watching a servo (cleanup,
-    deactivate, a lost port) must reset() it, since the servo may have restarted meanwhile (or,
-    the simulator, be a new one), its tick from 0. A bound no sample confirmed for forget_after_s
-    is forgotten too: relaxed by drift it would soon mean nothing, and past half the tick's wrap
-    it would mean the opposite.
-    """
-
-    def __init__(self, tolerance_ms: float = 2.0, drift_ppm: float = 300.0,
-                 forget_after_s: float = 60.0) -> None:
-        self.tolerance_ms = tolerance_ms
-        self.drift = drift_ppm * 1e-6
-        self.forget_after_ms = forget_after_s * 1000.0
-        self._bound_ms: Optional[float] = None
-        self._bound_at_ms = 0.0
-        self.refused = 0
-
-    def reset(self) -> None:
-        """Forget the offset (the servo restarted: its tick started again from 0)."""
-        self._bound_ms = None
-
-    def check(self, tick: int, sent_s: float, received_s: float) -> bool:
-        """Return False when the sample was taken before sent_s; learn from it otherwise."""
-        sent_ms = sent_s * 1000.0
-        received_ms = received_s * 1000.0
-        bound = self._bound_ms
-        if bound is None or received_ms - self._bound_at_ms > self.forget_after_ms:
-            self._bound_ms = _wrap_ms(tick - received_ms)
-            self._bound_at_ms = received_ms
-            return True
-        bound -= self.drift * max(0.0, received_ms - self._bound_at_ms)
-        age_ms = _wrap_ms(bound - (tick - sent_ms))
-        if age_ms > self.tolerance_ms:
-            self.refused += 1
-            return False
-        rise = _wrap_ms((tick - received_ms) - bound)
-        if rise > 0.0:
-            bound += rise
-        self._bound_ms = _wrap_ms(bound)
-        self._bound_at_ms = received_ms
-        return True
 
 
 # Protocol 2.0 framing sizes, for bus timing.
