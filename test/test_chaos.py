@@ -35,6 +35,8 @@ from typing import Any, Dict, Iterator, List, Optional, Sequence, Tuple
 
 from adapter_faults import AdapterProxy, Faults
 from diagnostic_msgs.msg import DiagnosticArray
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import Client
 from processes import (
     NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
@@ -69,19 +71,22 @@ JOINTS: Dict[str, Dict[str, Any]] = {
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
 NAMES = tuple(JOINTS)
 
-# Stale-sample check. Published position = (raw + turn offset - 2048) * 2 pi / 4096; the node
-# keeps whole turns in software (extended_position, velocity, current_based_position after a
-# power cycle), so those are compared modulo one turn, where the offset vanishes; the position
-# joint (no turns kept) is compared as it is.
-PULSES_PER_REV = 4096
-RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
+# Stale-sample check. Published position = (raw + turn offset - zero) * rad per pulse, in the
+# units of the XM430 manual's model, every joint's here (models/units.py: zero 2048, 4096 pulses
+# a turn); the node keeps whole turns in software (extended_position, velocity,
+# current_based_position after a power cycle), so those are compared modulo one turn, where the
+# offset vanishes; the position joint (no turns kept) is compared as it is.
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+PULSES_PER_REV = UNITS.pulses_per_rev
+RAD_PER_PULSE = UNITS.rad_per_pulse
 # Quantisation (1 pulse), a holding controller's 1-pulse dither between two trace samples, and
 # the float round trip. With the wheel at 2.6 pulses/ms this and the 2 ms trace step leave a
 # resolution of a few ms: a wheel sample 5 ms older than allowed is caught most of the time,
 # 10 ms (half a cycle) practically always; late copies are 5-50 ms late.
 TOLERANCE_PULSES = 3
 TRACE_PERIOD_S = 0.002
-# The node's own tolerance (model.TickClock): a sample may be 2 ms older than its request.
+# The node's own tolerance (driver/clock.py, TickClock): a sample may be 2 ms older than its
+# request.
 EARLIER_S = 0.002
 # A sample is taken when its request reaches the servos, after the stamp: the sync read at
 # once, a retry while the cycle has time (0.9 period), a restart check after that; each one-off
@@ -400,7 +405,7 @@ def check_samples(trace: Trace,
             servo_id = IDS[name]
             # The node keeps no turns in position mode (single turn): there, the very value.
             exact = JOINTS[name]['operating_mode'] == 'position'
-            pulses = round(position / RAD_PER_PULSE) + PULSES_PER_REV // 2
+            pulses = round(position / RAD_PER_PULSE) + UNITS.zero_raw
             result.checked += 1
             if trace.matches(servo_id, pulses, stamp - EARLIER_S, stamp + REPLY_WINDOW_S,
                              exact):

@@ -8,20 +8,23 @@ reaches only that bus (seen through virtual_bus's `get ID NAME` control line). E
 stopped with SIGINT, every process is waited for; every file is removed.
 """
 
-import math
 import os
 import pathlib
 import signal
 import time
 from typing import Dict, List
 
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import Client, new_context
 from processes import (
     EXIT_TIMEOUT_S, fresh_domain_id, NodeProcess, params_yaml, START_TIMEOUT_S,
     VirtualBusProcess)
 import rclpy
 
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
 
 
 def joint_params(joints: Dict[str, int]) -> Dict[str, Dict[str, object]]:
@@ -71,7 +74,7 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
         left_client.joint_states.wait(
             lambda m: abs(m.position[m.name.index('l_elbow')] - 0.6) < 0.03
             if 'l_elbow' in m.name else False, timeout_s=10.0)
-        assert left_bus.get(2, 'goal_position') == 2048 + round(0.6 / RAD_PER_PULSE)
+        assert left_bus.get(2, 'goal_position') == UNITS.zero_raw + round(0.6 / RAD_PER_PULSE)
         # A right joint named on the left is unknown there: refused, nothing moves.
         left_client.publish('position', ['r_shoulder'], [1.0])
         response = left_client.call('set_position', name=['r_shoulder'], value=[1.0])
@@ -81,8 +84,8 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
         # And the right node obeys its own namespace.
         response = right_client.call('set_position', name=['r_shoulder'], value=[-0.4])
         assert response.success, response.message
-        assert right_bus.get(11, 'goal_position') == 2048 + round(-0.4 / RAD_PER_PULSE)
-        assert left_bus.get(2, 'goal_position') == 2048 + round(0.6 / RAD_PER_PULSE)
+        assert right_bus.get(11, 'goal_position') == UNITS.zero_raw + round(-0.4 / RAD_PER_PULSE)
+        assert left_bus.get(2, 'goal_position') == UNITS.zero_raw + round(0.6 / RAD_PER_PULSE)
 
         for node in nodes:
             node.alive()

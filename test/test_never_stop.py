@@ -11,7 +11,6 @@ or accepted without harming the node.
 """
 
 import bisect
-import math
 import random
 import threading
 import time
@@ -19,6 +18,8 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from adapter_faults import Faults
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.node import StartupFailure
 from lifecycle_msgs.msg import Transition
 from node_harness import faulty_harness, NodeHarness, sim_params, startup_failure
@@ -26,9 +27,11 @@ import pytest
 from rcl_interfaces.msg import Log
 from sensor_msgs.msg import JointState
 
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
-RAD_S_PER_RAW = 0.229 * 2.0 * math.pi / 60.0
-A_PER_RAW = 0.00269
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
+RAD_S_PER_RAW = UNITS.rad_s_per_velocity_raw
+A_PER_RAW = UNITS.a_per_current_raw
 WHEEL_RAD_S = 3.0
 JOINTS: Dict[str, Dict[str, Any]] = {
     'arm': {'id': 1, 'operating_mode': 'position'},
@@ -106,7 +109,7 @@ def stale_wheel_samples(messages: List[JointState], truth: Truth, after_s: float
         position = position_of(msg, 'wheel')
         if position is None or not after_s < stamp < before_s:
             continue
-        raw = round(position / RAD_PER_PULSE) + 2048 - turn_offset
+        raw = round(position / RAD_PER_PULSE) + UNITS.zero_raw - turn_offset
         window = truth.between(stamp - 0.002, stamp + 0.1)
         checked += 1
         if not window or not min(window) - 3 <= raw <= max(window) + 3:
@@ -198,7 +201,7 @@ def test_cycle_survives_a_misbehaving_adapter(profile: str, read_mode: str) -> N
         assert h.call('get_state').current_state.label == 'active'
         h.publish('position', ['arm'], [0.3])
         h.wait_reg(IDS['arm'], 'goal_position',
-                   lambda v: v == 2048 + round(0.3 / RAD_PER_PULSE))
+                   lambda v: v == UNITS.zero_raw + round(0.3 / RAD_PER_PULSE))
         # joint_states kept coming, and none of them was stale.
         during = [m for m in messages.items if faulted_s < stamp_s(m) < cleared_s]
         assert len(during) >= 30, len(during)
@@ -308,7 +311,7 @@ def test_recovery_does_not_stall_the_other_joints() -> None:
         began = time.time()
         h.sim.inject_error(IDS['gripper'], 'overload')
         answered: List[float] = []
-        while h.node.manager.recoveries < 1 or 'gripper' in h.node.manager.tasks:
+        while h.node.manager.stats.recoveries < 1 or 'gripper' in h.node.manager.tasks:
             assert time.time() - began < 15.0, 'no recovery'
             start = time.monotonic()
             assert h.call('set_velocity', name=['wheel'], value=[WHEEL_RAD_S]).success

@@ -1,9 +1,9 @@
 """
-The driver node in-process on `port: sim`: every topic and service of SPEC section 2.
+The driver node in-process on `port: sim`: every topic and service of README.md.
 
 Each test runs a real DriverNode over the real manager, bus layer and simulator (no mocks) and
 checks what it did against the simulated servos' registers. Expected raw values are computed
-here from the seed's units, not with the package's own conversions.
+here from the XM430 manual's model's units (models/units.py), not from what the node did.
 """
 
 import math
@@ -12,16 +12,19 @@ import time
 from typing import Any, Dict, Iterator, List, Sequence, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from dxl_servo_driver.models import model_for, modes, xm430
+from dxl_servo_driver.models.units import units_for
 from lifecycle_msgs.msg import Transition
 from node_harness import NodeHarness, sim_params, startup_failure
 import pytest
 
-# The seed's units (SPEC section 2, Units).
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
-RAD_S_PER_RAW = 0.229 * 2.0 * math.pi / 60.0
-A_PER_RAW = 2.69e-3
-PWM_FULL_RAW = 885
-TORQUE_CONSTANT_NM_PER_A = 4.1 / 2.3
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
+RAD_S_PER_RAW = UNITS.rad_s_per_velocity_raw
+A_PER_RAW = UNITS.a_per_current_raw
+PWM_FULL_RAW = UNITS.pwm_full_raw
+TORQUE_CONSTANT_NM_PER_A = UNITS.torque_constant_nm_per_a
 GOALS = ('goal_position', 'goal_velocity', 'goal_current', 'goal_pwm')
 KIND_REGISTER = {'position': 'goal_position', 'velocity': 'goal_velocity',
                  'current': 'goal_current', 'pwm': 'goal_pwm'}
@@ -48,16 +51,15 @@ JOINTS: Dict[str, Dict[str, Any]] = {
                 'registers': {'current_limit': 400}},
 }
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
-MODE_RAW = {'current': 0, 'velocity': 1, 'position': 3, 'extended_position': 4,
-            'current_based_position': 5, 'pwm': 16}
+MODE_RAW = modes.numbers(*modes.NAMES)
 
 
 def pos_raw(rad: float) -> int:
-    return 2048 + round(rad / RAD_PER_PULSE)
+    return UNITS.zero_raw + round(rad / RAD_PER_PULSE)
 
 
 def pos_rad(raw: int) -> float:
-    return (raw - 2048) * RAD_PER_PULSE
+    return (raw - UNITS.zero_raw) * RAD_PER_PULSE
 
 
 def goal_raw(kind: str, value: float) -> int:
@@ -100,7 +102,7 @@ def values_of(status: DiagnosticStatus) -> Dict[str, str]:
 
 def test_joint_states_at_rest_equal_the_registers(h: NodeHarness) -> None:
     # Torque off and at rest, the registers do not change: the published SI values must equal
-    # the seed's conversions of them exactly.
+    # the manual's unit conversions of them exactly.
     assert h.call('set_torque', name=[], enable=False).success
     for sid in IDS.values():
         h.wait_reg(sid, 'present_velocity', lambda v: v == 0)

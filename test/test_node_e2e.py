@@ -6,18 +6,21 @@ this process watches joint_states and sends commands; virtual_bus's control line
 NAME`) show what reached the servo. Every process is stopped and waited for, every file removed.
 """
 
-import math
 import os
 import pathlib
 import re
 import signal
 from typing import List, Optional
 
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import Client
 from processes import (
     EXIT_TIMEOUT_S, NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
 
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
 
 
 JOINTS = {'j1': {'id': 1, 'operating_mode': 'position'},
@@ -40,11 +43,11 @@ def test_node_runs_moves_a_joint_and_stops_on_sigint(workdir: pathlib.Path, clie
             client.joint_states,
             lambda m: m.name[:1] == ['j1'] and abs(m.position[0] - 0.5) < 0.03, 10.0)
         assert msg.name[0] == 'j1'
-        assert bus.get(1, 'goal_position') == 2048 + round(0.5 / RAD_PER_PULSE)
+        assert bus.get(1, 'goal_position') == UNITS.zero_raw + round(0.5 / RAD_PER_PULSE)
         # A service call over DDS to another process, answered after the write.
         response = client.call('set_velocity', name=['j2'], value=[1.0])
         assert response.success, response.message
-        assert bus.get(2, 'goal_velocity') == round(1.0 / (0.229 * 2.0 * math.pi / 60.0))
+        assert bus.get(2, 'goal_velocity') == round(1.0 / UNITS.rad_s_per_velocity_raw)
         node.proc.send_signal(signal.SIGINT)
         code = node.wait(EXIT_TIMEOUT_S)
         output = node.output()

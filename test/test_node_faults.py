@@ -13,17 +13,23 @@ import time
 from typing import Any, Dict, Iterator, List, Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
 from sensor_msgs.msg import JointState
 
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
+# The XM430 manual's model, every joint's here: its units (models/units.py) and error bits.
+MANUAL = model_for(xm430.MODEL_NUMBER)
+UNITS = units_for(MANUAL)
+RAD_PER_PULSE = UNITS.rad_per_pulse
+PULSES_PER_REV = UNITS.pulses_per_rev
 SERVICE_DEADLINE_S = 5.0   # "never hang": generous for a busy machine, far below forever
-OVERLOAD = 0x20            # seed: Hardware Error Status bit 5
+OVERLOAD = {name: bit for bit, name in MANUAL.hardware_error_bits.items()}['overload']
 
 
 def pos_raw(rad: float) -> int:
-    return 2048 + round(rad / RAD_PER_PULSE)
+    return UNITS.zero_raw + round(rad / RAD_PER_PULSE)
 
 
 def stamp_s(msg: Any) -> float:
@@ -145,7 +151,7 @@ def test_port_lost_and_back(ph: NodeHarness) -> None:
     # What was published after the return matches the servos.
     for msg, _, positions in recorder.since(unplugged_s):
         for name, position in zip(msg.name, msg.position):
-            assert abs(position - (positions[name] - 2048) * RAD_PER_PULSE) < 0.05, name
+            assert abs(position - UNITS.position_to_rad(positions[name])) < 0.05, name
 
 
 # power cut in extended position mode --------------------------------------------------------
@@ -178,12 +184,12 @@ def test_multi_turn_position_survives_a_power_cycle() -> None:
             assert abs(msg.position[0] - target_rad) < tolerance_rad, msg.position[0]
         # The turns are kept by the driver, not in EEPROM: the servo itself counts within a turn
         # from its boot, and nothing was written to its homing offset.
-        assert turn_offset % 4096 == 0 and turn_offset != 0
-        assert 0 <= h.reg(1, 'present_position') < 4096
+        assert turn_offset % PULSES_PER_REV == 0 and turn_offset != 0
+        assert 0 <= h.reg(1, 'present_position') < PULSES_PER_REV
         assert h.reg(1, 'homing_offset') == 0
         # It holds where it is (the goal sent before the cut is not replayed on its own).
         assert abs(h.reg(1, 'goal_position') - h.reg(1, 'present_position')) <= 8
-        held = (h.reg(1, 'goal_position') + turn_offset - 2048) * RAD_PER_PULSE
+        held = (h.reg(1, 'goal_position') + turn_offset - UNITS.zero_raw) * RAD_PER_PULSE
         assert abs(held - target_rad) < tolerance_rad
 
 
@@ -231,7 +237,7 @@ def test_overload_stays_latched_when_recovery_is_off() -> None:
         array = h.diagnostics.wait(timeout_s=5.0)   # one more second: still latched
         assert servo_status(array, 'gripper').level == DiagnosticStatus.ERROR
         assert h.reg(1, 'hardware_error_status') & OVERLOAD
-        assert h.reg(1, 'torque_enable') == 0   # the seed's shutdown
+        assert h.reg(1, 'torque_enable') == 0   # the manual's Shutdown default
         assert servo_status(array, 'wrist').level == DiagnosticStatus.OK
 
 
@@ -270,7 +276,7 @@ def test_lost_replies_never_give_stale_values() -> None:
             assert 'gone' not in msg.name
             assert len(msg.name) == len(msg.position) == len(msg.velocity) == len(msg.effort)
             for name, position in zip(msg.name, msg.position):
-                registered_rad = (positions[name] - 2048) * RAD_PER_PULSE
+                registered_rad = (positions[name] - UNITS.zero_raw) * RAD_PER_PULSE
                 if name == 'wheel':
                     # Read before it arrived: behind the servo now, by less than the latency.
                     assert registered_rad - 0.5 * WHEEL_RAD_S <= position <= registered_rad
@@ -302,18 +308,18 @@ def test_position_mode_after_turns_were_kept_across_a_reboot() -> None:
         assert h.call('reboot', name=['spin']).success
         # The turn is kept by the driver across the reboot (nothing written to EEPROM).
         assert h.node is not None
-        assert h.node.manager.servos['spin'].turn_offset == 4096
+        assert h.node.manager.servos['spin'].turn_offset == PULSES_PER_REV
         assert h.reg(1, 'homing_offset') == 0
         # Published with the kept turn: where the horn is now (it may coast a little while the
         # servo boots), within a few degrees of the target rather than one turn away.
-        kept = (h.reg(1, 'present_position') + 4096 - 2048) * RAD_PER_PULSE
+        kept = (h.reg(1, 'present_position') + PULSES_PER_REV - UNITS.zero_raw) * RAD_PER_PULSE
         assert abs(kept - target_rad) < math.radians(20.0)
         h.joint_states.wait(lambda m: abs(m.position[0] - kept) < 0.01)
         response = h.call('set_operating_mode', name=['spin'], mode='position')
         assert response.success, response.message
         # Position mode covers one turn: the kept turns are dropped and 0..4095 is published.
         assert h.node.manager.servos['spin'].turn_offset == 0
-        assert 0 <= h.reg(1, 'present_position') <= 4095
+        assert 0 <= h.reg(1, 'present_position') <= PULSES_PER_REV - 1
         assert h.reg(1, 'torque_enable') == 1
-        present = (h.reg(1, 'present_position') - 2048) * RAD_PER_PULSE
+        present = (h.reg(1, 'present_position') - UNITS.zero_raw) * RAD_PER_PULSE
         h.joint_states.wait(lambda m: abs(m.position[0] - present) < 0.01)

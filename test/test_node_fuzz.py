@@ -4,11 +4,12 @@ Fuzz: random messages at every command topic and driver service of a running nod
 A seeded generator (DXL_FUZZ_SEED to replay another run) builds JointCommand messages and
 SetGoals / SetOperatingMode / SetTorque / Reboot / ReadRegister / WriteRegister requests with
 random names (known, unknown, empty, unicode, very long), mismatched lengths, awkward floats (NaN,
-+-inf, huge, tiny, -0.0) and random modes, registers and values. An oracle written here from the
-SPEC and the seed (not from the package's code) says for each input whether it must be refused and,
-if not, which raw goal the simulated servo must hold afterwards. Every refusal must leave all goal
-registers as they were; every service call must be answered (a refusal with success False and a
-message); after the storm the node still publishes joint_states and obeys a normal command.
++-inf, huge, tiny, -0.0) and random modes, registers and values. An oracle written here from
+README.md and the XM430 manual (not from the package's code; the units are the model's,
+models/units.py) says for each input whether it must be refused and, if not, which raw goal the
+simulated servo must hold afterwards. Every refusal must leave all goal registers as they were;
+every service call must be answered (a refusal with success False and a message); after the
+storm the node still publishes joint_states and obeys a normal command.
 """
 
 import math
@@ -16,19 +17,21 @@ import os
 import random
 from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver.models import modes
+from dxl_servo_driver.models import model_for, modes, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
 
 SEED = int(os.environ.get('DXL_FUZZ_SEED', '5051'))
 OPERATIONS = 1500   # a fixed budget: about 10-20 s on a busy 2-core machine
 
-# The seed's units, written out here (SPEC section 2, Units).
-RAD_PER_PULSE = 2.0 * math.pi / 4096
-RAD_S_PER_RAW = 0.229 * 2.0 * math.pi / 60.0
-A_PER_RAW = 2.69e-3
-PWM_FULL_RAW = 885
-EXTENDED_LIMIT_RAW = 1048575   # seed: goal position range in modes 4 and 5
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
+RAD_S_PER_RAW = UNITS.rad_s_per_velocity_raw
+A_PER_RAW = UNITS.a_per_current_raw
+PWM_FULL_RAW = UNITS.pwm_full_raw
+EXTENDED_LIMIT_RAW = xm430.EXTENDED_POSITION_LIMIT   # goal position range in modes 4 and 5
 # Finite values beyond this are absurd for any joint: the driver may refuse them ('out of any
 # range') instead of clamping; either answer is accepted, but it must be one of the two cleanly.
 ABSURD = 1e9
@@ -55,7 +58,7 @@ MODE_KINDS = {
 }
 MODES = tuple(MODE_KINDS)
 
-# The registers the fuzzer uses, from the seed's control table: name -> (address, access, area,
+# The registers the fuzzer uses, from the XM430 manual's table: name -> (address, access, area,
 # minimum, maximum). Values of the 'static' ones cannot change under the node.
 REGISTERS: Dict[str, Tuple[int, str, str, int, int]] = {
     'model_number': (0, 'R', 'eeprom', 0, 65535),
@@ -93,8 +96,8 @@ STATIC_REGISTERS = ('model_number', 'firmware_version', 'led', 'position_p_gain'
 DRIVER_OWNED = {'id', 'baud_rate', 'operating_mode', 'torque_enable', 'goal_position',
                 'goal_velocity', 'indirect_address_1', 'indirect_data_1'}
 # Not the start of any item: inside model_number, reserved, inside goal_position, past the table.
-# (12 is not in the seed's table but is Secondary ID on the simulated XM430-W350, as the SDK's
-# table and e-manual have it: models.SEED_DIFFERENCES.)
+# (12 is not in the XM430 manual's table but is Secondary ID on the simulated XM430-W350, as the
+# SDK's table and e-manual have it: models.MANUAL_DIFFERENCES.)
 BAD_ADDRESSES = (1, 15, 117, 700, 65536, 2 ** 40)
 # A lower limit would make goals clamp to nothing and the marker command below undetectable.
 LIMIT_FLOOR = {'pwm_limit': 50, 'current_limit': 50, 'velocity_limit': 50}
@@ -109,7 +112,7 @@ UNKNOWN_MODES = ('', 'Position', 'POSITION', 'torque', 'position ', 'extended', 
 
 
 class Oracle:
-    """What the node must do with a request: the SPEC's rules, the seed's limits and units."""
+    """What the node must do with a request: README.md's rules, the manual's limits, units."""
 
     def __init__(self, h: NodeHarness) -> None:
         self.h = h
@@ -119,10 +122,10 @@ class Oracle:
         return self.h.reg(IDS[name], register)
 
     def raw_goal(self, name: str, kind: str, value: float) -> int:
-        """Return the raw goal the servo must get: the seed's units, clamped to its limits."""
+        """Return the raw goal the servo must get: the model's units, clamped to its limits."""
         mode = self.modes[name]
         if kind == 'position':
-            raw = round(value / RAD_PER_PULSE) + 2048
+            raw = round(value / RAD_PER_PULSE) + UNITS.zero_raw
             if mode == 'position':
                 low = self.limit(name, 'min_position_limit')
                 high = self.limit(name, 'max_position_limit')
@@ -181,9 +184,9 @@ class Oracle:
             return False, register
         sid = IDS[joint]
         if area == 'eeprom' and self.h.reg(sid, 'torque_enable'):
-            return False, register   # SPEC: an EEPROM write while torque is on is refused
+            return False, register   # README.md: an EEPROM write while torque is on is refused
         if register in ('goal_pwm', 'goal_current'):
-            # The seed: beyond PWM Limit / Current Limit the servo answers Data Limit Error.
+            # The manual: beyond PWM Limit / Current Limit the servo answers Data Limit Error.
             limit = self.h.reg(sid, 'pwm_limit' if register == 'goal_pwm' else 'current_limit')
             if abs(value) > limit:
                 return False, register
@@ -310,10 +313,10 @@ class Fuzzer:
         register = KIND_REGISTER[kind]
         held = self.snapshot[(IDS[name], register)]
         if kind == 'position':
-            value = (2000 - 2048) * RAD_PER_PULSE
+            value = (2000 - UNITS.zero_raw) * RAD_PER_PULSE
             raw = self.oracle.raw_goal(name, kind, value)
             if raw == held:
-                value = (2100 - 2048) * RAD_PER_PULSE
+                value = (2100 - UNITS.zero_raw) * RAD_PER_PULSE
                 raw = self.oracle.raw_goal(name, kind, value)
             return name, raw, value
         raw = 20 if held != 20 else -20
@@ -474,10 +477,11 @@ def test_random_storm_of_commands_and_requests(h: NodeHarness) -> None:
         assert h.call('set_operating_mode', name=[name], mode='position').success
     response = h.call('set_position', name=['arm', 'spin'], value=[0.25, -0.5])
     assert response.success, response.message
-    assert h.reg(IDS['arm'], 'goal_position') == 2048 + round(0.25 / RAD_PER_PULSE)
-    assert h.reg(IDS['spin'], 'goal_position') == 2048 + round(-0.5 / RAD_PER_PULSE)
+    assert h.reg(IDS['arm'], 'goal_position') == UNITS.zero_raw + round(0.25 / RAD_PER_PULSE)
+    assert h.reg(IDS['spin'], 'goal_position') == UNITS.zero_raw + round(-0.5 / RAD_PER_PULSE)
     h.publish('position', ['wheel'], [0.4])
-    h.wait_reg(IDS['wheel'], 'goal_position', lambda v: v == 2048 + round(0.4 / RAD_PER_PULSE))
+    h.wait_reg(IDS['wheel'], 'goal_position',
+               lambda v: v == UNITS.zero_raw + round(0.4 / RAD_PER_PULSE))
     h.joint_states.wait(lambda m: abs(m.position[m.name.index('arm')] - 0.25) < 0.02
                         if 'arm' in m.name else False, timeout_s=10.0)
 

@@ -24,8 +24,8 @@ BAUD = 57600
 FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
            (4, False): '<I', (4, True): '<i'}
 TOLERANCE = 0.05
-# One model per family and unit: seed table, XL430 (load), XM540, XL330 (1 mA, 5 V), XH430-V
-# (1.34 mA, 24 V), plus the fastest (XL330-M077) and a 11.1 V X330.
+# One model per family and unit: the XM430 manual's table, XL430 (load), XM540, XL330 (1 mA,
+# 5 V), XH430-V (1.34 mA, 24 V), plus the fastest (XL330-M077) and a 11.1 V X330.
 PHYSICS_MODELS = (1020, 1060, 1120, 1200, 1040, 1190, 1210)
 LOAD_MODELS = tuple(model for model in ALL_MODELS if model.load_unit_ratio is not None)
 
@@ -181,7 +181,7 @@ def test_writing_an_item_the_model_lacks_is_an_access_error(number: int, address
     bench = Bench(model)
     size = model_for(1030).item(lacks).size
     assert bench.write_bytes(address, bytes(size)) == ErrorCode.ACCESS
-    # The same write is fine on the seed's model.
+    # The same write is fine on the XM430 manual's model.
     assert Bench(model_for(1030)).write_bytes(address, bytes(size)) == 0
 
 
@@ -194,10 +194,10 @@ def test_model_specific_items_are_writable_where_they_exist() -> None:
     x330 = Bench(model_for(1200))
     assert x330.write('pwm_slope', 10) == 0
     assert x330.read('pwm_slope') == 10
-    # The seed's model has neither.
-    seed = Bench(model_for(1030))
-    assert seed.write_bytes(62, b'\x0a') == ErrorCode.ACCESS
-    assert seed.write_bytes(152, b'\x00\x00') == ErrorCode.ACCESS
+    # The XM430 manual's model has neither.
+    manual = Bench(model_for(1030))
+    assert manual.write_bytes(62, b'\x0a') == ErrorCode.ACCESS
+    assert manual.write_bytes(152, b'\x00\x00') == ErrorCode.ACCESS
 
 
 @pytest.mark.parametrize('model', LOAD_MODELS, ids=label)
@@ -282,9 +282,9 @@ def test_x330_tables_differ_by_firmware() -> None:
 
 
 # ---- units and physics -------------------------------------------------------------------------
-def test_seed_models_keep_the_seed_motor_and_the_others_share_theirs() -> None:
-    assert motor.motor_for(model_for(1030)) is motor.SEED
-    assert motor.motor_for(model_for(1020)) is motor.SEED
+def test_manual_models_keep_the_manual_motor_and_the_others_share_theirs() -> None:
+    assert motor.motor_for(model_for(1030)) is motor.MANUAL_MOTOR
+    assert motor.motor_for(model_for(1020)) is motor.MANUAL_MOTOR
     assert Memory().model is model_for(1030)
     bus = SimBus([1, 2], boot_time_s=0.0, models={1: model_for(1060), 2: model_for(1060)})
     one, two = bus.servo(1), bus.servo(2)

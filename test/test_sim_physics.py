@@ -1,18 +1,22 @@
-"""Simulated servo physics against the seed's datasheet, plus controllers, thermal and errors."""
+"""Simulated servo physics against the XM430 manual's datasheet, controllers, thermal, errors."""
 
 import math
 
+from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.sim import motor
 import pytest
 from sim_rig import Rig
 
-# (volts, no-load rpm, stall torque N m, stall current A) from the seed's datasheet
+# (volts, no-load rpm, stall torque N m, stall current A) from the XM430 manual's datasheet
 DATASHEET = [(11.1, 43.0, 3.8, 2.1), (12.0, 46.0, 4.1, 2.3), (14.8, 57.0, 4.8, 2.7)]
 TOLERANCE = 0.05
+# The units of the manual's model (the Rig's servo).
+MANUAL = model_for(xm430.MODEL_NUMBER)
+AMPERE_PER_CURRENT_UNIT = MANUAL.current_unit_a
 
 
 def rpm(velocity_raw: int) -> float:
-    return velocity_raw * motor.RPM_PER_VELOCITY_UNIT
+    return velocity_raw * MANUAL.velocity_unit_rpm
 
 
 @pytest.mark.parametrize('volts, speed_rpm, torque_nm, current_a', DATASHEET)
@@ -42,7 +46,7 @@ def test_stall_current_and_torque_match_datasheet(volts: float, speed_rpm: float
     rig.write(torque_enable=1, goal_pwm=885)
     rig.run(0.2)
     assert rig.reg('present_position') == start
-    measured_a = rig.reg('present_current') * motor.AMPERE_PER_CURRENT_UNIT
+    measured_a = rig.reg('present_current') * AMPERE_PER_CURRENT_UNIT
     assert abs(measured_a / current_a - 1.0) < TOLERANCE
     delivered_nm = rig.dyn.motor_torque_nm - motor.COULOMB_FRICTION_NM
     assert abs(delivered_nm / torque_nm - 1.0) < TOLERANCE
@@ -58,7 +62,7 @@ def test_stall_current_and_torque_match_datasheet(volts: float, speed_rpm: float
 
 def test_load_holds_horn_while_motor_torque_below_it() -> None:
     goal_current_raw = 300  # 0.807 A -> about 1.44 N m at the horn
-    torque_nm = goal_current_raw * motor.AMPERE_PER_CURRENT_UNIT * motor.TORQUE_CONSTANT_NM_A
+    torque_nm = goal_current_raw * AMPERE_PER_CURRENT_UNIT * motor.TORQUE_CONSTANT_NM_A
     rig = Rig(mode=0)
     rig.dyn.set_load(torque_nm + 0.2)
     start = rig.reg('present_position')

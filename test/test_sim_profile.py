@@ -1,4 +1,4 @@
-"""Velocity profiles: the seed's selection table and timing formulas, pure and inside the servo."""
+"""Velocity profiles: the XM430 manual's selection table and timing formulas, in the servo too."""
 
 import math
 
@@ -23,7 +23,7 @@ def test_selection_table_examples() -> None:
     assert classify(10, 0, 100) == PROFILE_RECTANGULAR
     assert classify(100, 20, 2000) == PROFILE_TRAPEZOIDAL   # V_tri = 200 > 100
     assert classify(150, 30, 500) == PROFILE_TRIANGULAR     # V_tri = 122.5 <= 150
-    assert classify(100, 25, 400) == PROFILE_TRIANGULAR     # V_tri == V: triangular per the seed
+    assert classify(100, 25, 400) == PROFILE_TRIANGULAR     # V_tri == V: triangular per the manual
     assert travel_time_ms(100, 20, 2000) == pytest.approx(320.0 + 1280.0)
     assert travel_time_ms(60, 0, -600) == pytest.approx(640.0)
     assert travel_time_ms(150, 30, 500) == pytest.approx(128.0 * math.sqrt(500 / 30))

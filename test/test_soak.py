@@ -15,6 +15,8 @@ import threading
 import time
 from typing import Any, Dict, Iterator, List
 
+from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
 from rcl_interfaces.msg import Log
@@ -26,7 +28,9 @@ RSS_GROWTH_BOUND_KB = 20 * 1024
 DROP = 0.01
 # ERROR lines a lossy bus may cause; anything else at ERROR or FATAL is a failure.
 EXPECTED_ERRORS = re.compile(r'read failed|no status packet|did not answer')
-RAD_PER_PULSE = 2.0 * math.pi / 4096.0
+# The units of the XM430 manual's model, every joint's here (models/units.py).
+UNITS = units_for(model_for(xm430.MODEL_NUMBER))
+RAD_PER_PULSE = UNITS.rad_per_pulse
 
 # Like config/sim.yaml: one joint per command family, default loop_rate (100 Hz).
 JOINTS: Dict[str, Dict[str, Any]] = {
@@ -90,7 +94,7 @@ def test_soak(h: NodeHarness, capsys: pytest.CaptureFixture[str]) -> None:
     for sid in (1, 2, 3):
         h.sim.set_drop(sid, DROP)
     rss_samples = [rss_kb()]
-    cycles_start = manager.cycles
+    cycles_start = manager.stats.cycles
     received_start = h.joint_states.received
     start = time.monotonic()
     next_command = start
@@ -113,7 +117,7 @@ def test_soak(h: NodeHarness, capsys: pytest.CaptureFixture[str]) -> None:
         time.sleep(max(0.0, next_command - time.monotonic()))
     duration_s = time.monotonic() - start
     rss_samples.append(rss_kb())
-    cycles = manager.cycles - cycles_start
+    cycles = manager.stats.cycles - cycles_start
     published = h.joint_states.received - received_start
     servos = manager.order
     comm_errors = sum(servo.comm_errors for servo in servos)
@@ -126,8 +130,9 @@ def test_soak(h: NodeHarness, capsys: pytest.CaptureFixture[str]) -> None:
         f'soak: {duration_s:.0f} s, {cycles} cycles, {cycles / duration_s:.1f} Hz measured '
         f'(requested {1.0 / h.node._loop_period_s:g} Hz), {published} joint_states, '
         f'{sent} command rounds, comm errors {comm_errors} (read failures '
-        f'{manager.read_failures}, timeouts {bus.timeouts if bus else 0}, corrupt '
-        f'{bus.corrupt if bus else 0}), retries {manager.retries} ({manager.retry_successes} '
+        f'{manager.stats.read_failures}, timeouts {bus.timeouts if bus else 0}, corrupt '
+        f'{bus.corrupt if bus else 0}), retries {manager.stats.retries} '
+        f'({manager.stats.retry_successes} '
         f'succeeded), restarts {restarts}, errors logged {logs.count}, RSS '
         f'{rss_samples[0] / 1024:.1f} MB start, {baseline_kb / 1024:.1f} MB after '
         f'{RSS_SAMPLE_S:g} s, {rss_samples[-1] / 1024:.1f} MB end, growth '
@@ -140,10 +145,10 @@ def test_soak(h: NodeHarness, capsys: pytest.CaptureFixture[str]) -> None:
     assert not logs.errors, '\n'.join(logs.errors[:20])
     assert restarts == 0, summary   # lost replies are not restarts
     assert cycles > 0 and published > 0, summary
-    assert manager.retries > 0, summary   # 1 % drops over the run: the retry path ran
+    assert manager.stats.retries > 0, summary   # 1 % drops over the run: the retry path ran
     assert growth_kb < RSS_GROWTH_BOUND_KB, summary
     # Still obeying at the end.
     response = h.call('set_position', name=['shoulder'], value=[0.5])
     assert response.success, response.message
-    assert h.reg(1, 'goal_position') == 2048 + round(0.5 / RAD_PER_PULSE)
+    assert h.reg(1, 'goal_position') == UNITS.zero_raw + round(0.5 / RAD_PER_PULSE)
     h.joint_states.wait(lambda m: len(m.name) == len(JOINTS), timeout_s=5.0)

@@ -9,8 +9,8 @@ Fault injection acts per servo object (found by its current id): a dropped statu
 corrupted one has one bit flipped after the header so the receiver's CRC check fails (CRC-16
 catches every single-bit error); in a Fast Sync Read that is the servo's part.
 
-Each servo is of one model (models.Model, the seed's 1030 unless `models` says otherwise): its
-control table, its ping answer and its physics.
+Each servo is of one model (models.Model, the XM430 manual's 1030 unless `models` says
+otherwise): its control table, its ping answer, its hardware error bits and its physics.
 """
 
 from dataclasses import dataclass
@@ -21,14 +21,13 @@ from typing import Callable, Iterable, Mapping
 
 from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
-    BROADCAST_ID, encode_fast_sync_status, FAST_HEAD_SIZE, Instruction, Packet, StreamParser)
+    BROADCAST_ID, encode_fast_sync_status, FAST_HEAD_SIZE, Instruction, MAX_ID, Packet,
+    StreamParser)
+from dxl_servo_driver.sim.control import ERROR_KINDS
 from dxl_servo_driver.sim.dynamics import ServoDynamics
-from dxl_servo_driver.sim.memory import SEED_MODEL
+from dxl_servo_driver.sim.memory import MANUAL_MODEL
 from dxl_servo_driver.sim.servo import SimServo
 
-ERROR_KINDS: dict[str, int] = {
-    'voltage': 0x01, 'overheat': 0x04, 'encoder': 0x08, 'shock': 0x10, 'overload': 0x20,
-}
 # Replies of one packet stay in wire order even if two servos share an id (bus order then).
 _LAST = 1 << 16
 
@@ -63,7 +62,7 @@ class SimBus:
         """
         Put servos with these ids on the bus.
 
-        models maps an id to its servo's model (the others are model 1030, the seed's);
+        models maps an id to its servo's model (the others are the XM430 manual's, 1030);
         firmware maps an id to the Firmware Version it reports (default: its model's), which
         must be one that has that model's table. ValueError for a bad id or firmware.
         """
@@ -86,9 +85,9 @@ class SimBus:
                 raise ValueError(f'{what} names ids {strays}, which are not on the bus {ids}')
         self._slots: list[_Slot] = []
         for servo_id in ids:
-            if not 0 <= servo_id <= 252:
-                raise ValueError(f'servo id {servo_id} outside 0..252')
-            model = models.get(servo_id, SEED_MODEL)
+            if not 0 <= servo_id <= MAX_ID:
+                raise ValueError(f'servo id {servo_id} outside 0..{MAX_ID}')
+            model = models.get(servo_id, MANUAL_MODEL)
             servo = SimServo(servo_id, ServoDynamics(model=model), now_s,
                              boot_time_s=boot_time_s, model=model,
                              firmware_version=firmware.get(servo_id))
@@ -229,14 +228,20 @@ class SimBus:
             self._servo(servo_id).set_tick(self._clock(), int(tick_ms))
 
     def inject_error(self, servo_id: int, kind: str) -> None:
-        """Latch a hardware error: overload, overheat, voltage, encoder or shock."""
-        if kind not in ERROR_KINDS:
+        """
+        Latch a hardware error: overload, overheat, voltage, encoder or shock.
+
+        The word names one of the model's Hardware Error Status bits (control.ERROR_KINDS); the
+        bit is the servo's model's.
+        """
+        name = ERROR_KINDS.get(kind)
+        if name is None:
             raise ValueError(f'unknown error kind {kind!r}; one of {", ".join(ERROR_KINDS)}')
         with self.lock:
             servo = self._servo(servo_id)
             servo.advance(self._clock())
             if servo.powered:
-                servo.latch_errors(ERROR_KINDS[kind])
+                servo.latch_errors(servo.memory.table.error_bits[name])
 
     def powercycle(self, servo_id: int) -> None:
         """Cut the power and restore it: RAM defaults, torque off, boot time before it answers."""

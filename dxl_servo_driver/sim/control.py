@@ -4,7 +4,7 @@ Control lines of `virtual_bus` (fault injection and inspection), parsed and exec
 Pure: no I/O. `parse` turns a line into a Command or raises ControlError; `execute` runs a Command
 against a bus and returns the one answer line; `handle_line` does both and never raises.
 
-Commands (SPEC section 3, plus inspection):
+Commands (README.md, The simulator; plus inspection):
   drop ID PROBABILITY          status packets of ID lost with that probability (0..1)
   corrupt ID PROBABILITY       status packet bytes of ID altered with that probability (0..1)
   error ID KIND                latch a hardware error: overload|overheat|voltage|encoder|shock
@@ -24,13 +24,21 @@ from dataclasses import dataclass, field
 import math
 from typing import Callable, Protocol
 
-from dxl_servo_driver.models import ALL_MODELS, Model, model_for
+from dxl_servo_driver.models import ALL_MODELS, Model
+from dxl_servo_driver.protocol import MAX_ID
+from dxl_servo_driver.sim.memory import MANUAL_MODEL
 
-MAX_SERVO_ID = 252  # 253..255 are reserved / broadcast in Protocol 2.0
-MAX_TICK_MS = 32767   # the Realtime Tick's range
-ERROR_KINDS = ('overload', 'overheat', 'voltage', 'encoder', 'shock')
+MAX_SERVO_ID = MAX_ID  # 253..255 are reserved / broadcast in Protocol 2.0
+MAX_TICK_MS = MANUAL_MODEL.item('realtime_tick').maximum   # the Realtime Tick's range
+# The words of `error ID KIND` (public: README.md) and the Hardware Error Status bit each one
+# latches, by the model's name for it (models.Model.hardware_error_bits has the bit values).
+ERROR_KINDS: dict[str, str] = {
+    'overload': 'overload', 'overheat': 'overheating', 'voltage': 'input_voltage',
+    'encoder': 'motor_encoder', 'shock': 'electrical_shock',
+}
+_KIND_WORDS = '|'.join(ERROR_KINDS)
 HELP_TEXT = ('commands: drop ID P | corrupt ID P'
-             ' | error ID overload|overheat|voltage|encoder|shock | powercycle ID'
+             f' | error ID {_KIND_WORDS} | powercycle ID'
              ' | unplug ID | plug ID | load ID NM | voltage ID VOLTS | tick ID MS'
              ' | get ID NAME|ADDRESS | dump ID | stats | help')
 
@@ -54,7 +62,7 @@ _SIGNATURES: dict[str, tuple[str, ...]] = {
 _USAGE: dict[str, str] = {
     'drop': 'drop ID PROBABILITY',
     'corrupt': 'corrupt ID PROBABILITY',
-    'error': 'error ID overload|overheat|voltage|encoder|shock',
+    'error': f'error ID {_KIND_WORDS}',
     'powercycle': 'powercycle ID',
     'unplug': 'unplug ID',
     'plug': 'plug ID',
@@ -157,8 +165,8 @@ def _parse_float(token: str, what: str) -> float:
     return value
 
 
-# The tables a register name or address is looked up in: the seed's model first.
-_TABLES: tuple[Model, ...] = (model_for(1030), *ALL_MODELS)
+# The tables a register name or address is looked up in: the XM430 manual's model first.
+_TABLES: tuple[Model, ...] = (MANUAL_MODEL, *ALL_MODELS)
 
 
 def _parse_register(token: str) -> tuple[str, int | None]:
@@ -214,7 +222,7 @@ def parse(line: str) -> Command:
             text = token.lower()
             if text not in ERROR_KINDS:
                 raise ControlError(
-                    f'bad error kind {token!r}: expected one of {"|".join(ERROR_KINDS)}')
+                    f'bad error kind {token!r}: expected one of {_KIND_WORDS}')
         else:  # 'register'
             text, address = _parse_register(token)
     return Command(name, servo_id, value, text, address)

@@ -1,24 +1,26 @@
 """
 Physics, controllers and profiles of one simulated servo of any supported model.
 
-The servo (helper CORE) owns the control table and calls ServoDynamics: advance() runs the
-controllers and the motor for a time span, the on_* hooks react to writes. The model (the seed's
-1030 by default) gives the motor (motor.motor_for), the units of the registers and the supply
-the servo starts at (its nominal voltage). Choices where the seed is silent or ambiguous (see
-also motor.py and velocity_profile.py):
+The servo (servo.SimServo) owns the control table and calls ServoDynamics: advance() runs the
+controllers and the motor for a time span, the on_* hooks react to writes. The model (the XM430
+manual's 1030 by default) gives the motor (motor.motor_for), the units of the registers, the
+hardware error bits, the position it starts at (its zero, mid-turn) and the supply (its nominal
+voltage). Choices where the XM430 manual is silent or ambiguous (see also motor.py and
+velocity_profile.py):
 
 * Control period 1 ms: advance() runs whole periods and carries the remainder to the next call.
   While the servo is frozen (horn stuck by friction or load, constant output, no profile running,
   integrators idle) the rest of a span is jumped in one go, so an idle hour costs microseconds.
-* Gain conversions of the seed (KpP = P/128, KpI = I/65536, KpD = D/16, Kff1 = FF1/4,
-  Kff2 = FF2/4, KvP = P/128, KvI = I/65536; the seed's "65563" is read as 65536); every output
-  is in PWM raw units (885 = 100 %). Position error in pulses, its derivative in pulses per 1 ms
-  sample (the manual: "the constant in each equation includes sampling time"), the velocity
-  feed-forward in velocity units (0.229 rpm), the acceleration feed-forward in acceleration units,
+* Gain conversions of the manual (KpP = P/128, KpI = I/65536, KpD = D/16, Kff1 = FF1/4,
+  Kff2 = FF2/4, KvP = P/128, KvI = I/65536; the manual's "65563" is read as 65536); every output
+  is in PWM raw units (the model's pwm_full_raw, 885, is 100 %). Position error in pulses, its
+  derivative in pulses per 1 ms sample (the manual: "the constant in each equation includes
+  sampling time"), the velocity feed-forward in the profile's velocity units
+  (velocity_profile.py), the acceleration feed-forward in its acceleration units,
   integrals sum the error once per 1 ms sample. Per sample, the XL430's default D gain (4000)
   damps it near critically (zeta ~1.2); in velocity units, 64 times stronger, it would make the
   loop unstable at a 1 ms sample. The velocity loop takes its error in pulse/s
-  (velocity units times beta = 15.63, the seed's "conversion coefficient of position and
+  (velocity units times beta = 15.63, the manual's "conversion coefficient of position and
   velocity"), which makes the default gains (P 50, I 1920) settle in tens of ms.
 * Anti-windup: an integrator does not integrate while the output is saturated in the direction
   of the error, and its contribution is clamped to the output limit.
@@ -52,10 +54,13 @@ import struct
 from typing import Optional, Protocol
 
 from dxl_servo_driver.models import Model, modes
+from dxl_servo_driver.models.xm430 import (
+    HOMING_OFFSET_POSITION_MODE_LIMIT, INT32_MAX, INT32_MIN)
 from dxl_servo_driver.sim import motor
-from dxl_servo_driver.sim.memory import SEED_MODEL
+from dxl_servo_driver.sim.memory import MANUAL_MODEL, table_for
 from dxl_servo_driver.sim.velocity_profile import (
-    plan_position, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ramp_velocity)
+    ACCELERATION_UNIT_PULSE_MS2, plan_position, PositionProfile, PROFILE_STEP,
+    PROFILE_TRAPEZOIDAL, ramp_velocity, VELOCITY_UNIT_PULSE_MS)
 
 CONTROL_PERIOD_S = 0.001
 FOLLOWING_ERROR_PULSE = 256
@@ -76,12 +81,9 @@ MOVING_STATUS_FOLLOWING_ERROR = 0x08
 MOVING_STATUS_PROFILE_ONGOING = 0x02
 MOVING_STATUS_IN_POSITION = 0x01
 
-ERROR_INPUT_VOLTAGE = 0x01
-ERROR_OVERHEATING = 0x04
-ERROR_OVERLOAD = 0x20
-
-_INT32_MIN = -(1 << 31)
-_INT32_MAX = (1 << 31) - 1
+# The profile's units (velocity_profile.py) per pulse/ms and pulse/ms^2: 64 and 4096.
+_VELOCITY_RAW_PER_PULSE_MS = 1.0 / VELOCITY_UNIT_PULSE_MS
+_ACCELERATION_RAW_PER_PULSE_MS2 = 1.0 / ACCELERATION_UNIT_PULSE_MS2
 
 
 class RegisterStore(Protocol):
@@ -96,18 +98,11 @@ class RegisterStore(Protocol):
         ...
 
 
-# Moving (122), Moving Status (123), Present PWM (124), Present Current (126), Present Velocity
-# (128), Present Position (132), Velocity Trajectory (136), Position Trajectory (140), Present
-# Input Voltage (144), Present Temperature (146).
-_POSITION_MODE_HOMING_LIMIT = 1024
-_PRESENT_BLOCK = struct.Struct('<BBhhiiiiHB')
-_PRESENT_BLOCK_ADDRESS = 122
+# The registers advance() publishes, in the order of the values it computes (and of the XM430
+# manual's table: Moving .. Present Temperature).
 _PRESENT_NAMES = ('moving', 'moving_status', 'present_pwm', 'present_current',
                   'present_velocity', 'present_position', 'velocity_trajectory',
                   'position_trajectory', 'present_input_voltage', 'present_temperature')
-# Where each of them sits in the block: (offset, size, signed).
-_PRESENT_SLOTS = ((0, 1, False), (1, 1, False), (2, 2, True), (4, 2, True), (6, 4, True),
-                  (10, 4, True), (14, 4, True), (18, 4, True), (22, 2, False), (24, 1, False))
 
 
 def _present_names(model: Model) -> tuple[str, ...]:
@@ -118,22 +113,29 @@ def _present_names(model: Model) -> tuple[str, ...]:
                  for name in _PRESENT_NAMES)
 
 
-def _block_fits(model: Model, names: tuple[str, ...]) -> bool:
-    """Return whether the model keeps the present registers in the seed's contiguous block."""
-    for name, (offset, size, signed) in zip(names, _PRESENT_SLOTS):
-        if not model.has(name):
-            return False
-        item = model.item(name)
-        if (item.address, item.size, item.signed) != (
-                _PRESENT_BLOCK_ADDRESS + offset, size, signed):
-            return False
-    return True
+def _present_block(model: Model, names: tuple[str, ...]) -> tuple[struct.Struct, int] | None:
+    """
+    Return (the struct, the start address) of the present registers as one run of the table.
+
+    None when the model does not keep them one after the other in this order (then they are
+    set one by one). The struct's formats are the items' own (size and sign), from the table.
+    """
+    if not all(model.has(name) for name in names):
+        return None
+    items = [model.item(name) for name in names]
+    for before, after in zip(items, items[1:]):
+        if after.address != before.address + before.size:
+            return None
+    structs = table_for(model).structs
+    layout = '<' + ''.join(structs[item.name].format[1:] for item in items)
+    return struct.Struct(layout), items[0].address
 
 
 def _homing_offset(regs: 'RegisterStore') -> int:
-    """Return the homing offset in effect: position mode ignores one beyond +-1024 (the seed)."""
+    """Return the homing offset in effect: position mode ignores one beyond +-1024 (the manual)."""
     offset = regs.get('homing_offset')
-    if regs.get('operating_mode') == MODE_POSITION and abs(offset) > _POSITION_MODE_HOMING_LIMIT:
+    if regs.get('operating_mode') == MODE_POSITION and \
+            abs(offset) > HOMING_OFFSET_POSITION_MODE_LIMIT:
         return 0
     return offset
 
@@ -152,8 +154,14 @@ class ServoDynamics:
     """Motor, gearbox, controllers, profiles and thermal model of one servo."""
 
     def __init__(self, input_voltage_v: float | None = None, ambient_c: float = 25.0,
-                 start_position_pulse: float = 2048.0, model: Model | None = None) -> None:
-        model = SEED_MODEL if model is None else model
+                 start_position_pulse: float | None = None, model: Model | None = None) -> None:
+        """
+        Set up the physics of a model (the manual's by default) at rest.
+
+        The horn starts at start_position_pulse (default: the model's zero, mid-turn) and the
+        supply at input_voltage_v (default: the model's nominal voltage).
+        """
+        model = MANUAL_MODEL if model is None else model
         self.model = model
         self.motor = motor.motor_for(model)
         self._pulses_per_rev = model.pulses_per_rev
@@ -167,7 +175,14 @@ class ServoDynamics:
         self._ampere_per_unit = model.current_unit_a
         self._load_per_unit = model.load_unit_ratio
         self._present_names = _present_names(model)
-        self._pack_block = _block_fits(model, self._present_names)
+        self._present_block = _present_block(model, self._present_names)
+        # The Hardware Error Status bits the physics detects, the model's.
+        error_bits = table_for(model).error_bits
+        self._error_input_voltage = error_bits['input_voltage']
+        self._error_overheating = error_bits['overheating']
+        self._error_overload = error_bits['overload']
+        if start_position_pulse is None:
+            start_position_pulse = model.position_zero_raw
         self.horn_position_pulse = float(start_position_pulse)
         self.current_a = 0.0
         self.temperature_c = float(ambient_c)
@@ -187,11 +202,6 @@ class ServoDynamics:
         self.reset_controllers()
 
     # ----------------------------------------------------------------- readable physical state
-    @property
-    def velocity_pulse_s(self) -> float:
-        """Horn velocity in pulse/s."""
-        return self._omega_rad_s * self._pulse_per_rad
-
     @property
     def motor_torque_nm(self) -> float:
         """Electromagnetic torque at the horn (before friction and load)."""
@@ -279,7 +289,7 @@ class ServoDynamics:
 
     def _present_position_raw(self, homing_offset: int) -> int:
         value = self.horn_position_pulse + self._turn_offset_pulse + homing_offset
-        return _clamp_int(value, _INT32_MIN, _INT32_MAX)
+        return _clamp_int(value, INT32_MIN, INT32_MAX)
 
     def advance(self, dt_s: float, regs: RegisterStore) -> int:
         """
@@ -329,6 +339,8 @@ class ServoDynamics:
         pulse_per_rad_dt = self._pulse_per_rad * dt
         pulse_per_rad_ms = self._pulse_per_rad / 1000.0
         unit_per_rad_s = self._velocity_unit_per_rad_s
+        velocity_raw_per_pulse_ms = _VELOCITY_RAW_PER_PULSE_MS
+        acceleration_raw_per_pulse_ms2 = _ACCELERATION_RAW_PER_PULSE_MS2
         full = float(self._pwm_full_raw)
         volts_eff = volts if volts > 1e-6 else 1e-6
         overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
@@ -405,10 +417,10 @@ class ServoDynamics:
                     if profile_t >= profile.duration_ms:
                         profile = None
                 error = traj_p - pos
-                traj_v_raw = traj_v * 64.0
+                traj_v_raw = traj_v * velocity_raw_per_pulse_ms
                 demand = kpp * error + kpi * pos_integral \
                     + kpd * (traj_v - omega * pulse_per_rad_ms) \
-                    + kff1 * traj_v_raw + kff2 * traj_a * 4096.0
+                    + kff1 * traj_v_raw + kff2 * traj_a * acceleration_raw_per_pulse_ms2
                 if mode == MODE_CURRENT_BASED_POSITION:
                     target_a = (demand / full * volts - ke * omega) / r_ohm
                     if target_a > current_limit_a:
@@ -538,7 +550,7 @@ class ServoDynamics:
         homing = _homing_offset(regs)
         offset = self._turn_offset_pulse + homing
         velocity_raw = _clamp_int(self._omega_rad_s * self._velocity_unit_per_rad_s,
-                                  _INT32_MIN, _INT32_MAX)
+                                  INT32_MIN, INT32_MAX)
         position_raw = self._present_position_raw(homing)
         if self._ampere_per_unit is not None:
             current_raw = _clamp_int(self.current_a / self._ampere_per_unit, -32768, 32767)
@@ -553,9 +565,9 @@ class ServoDynamics:
         status = 0
         position_trajectory = get('position_trajectory')
         if position_mode:
-            velocity_trajectory = _clamp_int(self._traj_vel_pulse_ms * 64.0,
-                                             _INT32_MIN, _INT32_MAX)
-            position_trajectory = _clamp_int(self._traj_pulse + offset, _INT32_MIN, _INT32_MAX)
+            velocity_trajectory = _clamp_int(
+                self._traj_vel_pulse_ms * _VELOCITY_RAW_PER_PULSE_MS, INT32_MIN, INT32_MAX)
+            position_trajectory = _clamp_int(self._traj_pulse + offset, INT32_MIN, INT32_MAX)
             if torque_on:
                 status = self._profile_kind
                 if profile_on:
@@ -567,7 +579,7 @@ class ServoDynamics:
                     status |= MOVING_STATUS_FOLLOWING_ERROR
         elif mode == MODE_VELOCITY:
             velocity_trajectory = _clamp_int(self._vel_traj_raw if torque_on else 0.0,
-                                             _INT32_MIN, _INT32_MAX)
+                                             INT32_MIN, INT32_MAX)
             if torque_on and get('profile_acceleration') > 0:
                 status = PROFILE_TRAPEZOIDAL
         else:
@@ -576,19 +588,20 @@ class ServoDynamics:
         values = (moving, status, pwm_raw, current_raw, velocity_raw, position_raw,
                   velocity_trajectory, position_trajectory, voltage_raw, temperature_raw)
         raw = getattr(regs, 'raw', None)
-        if self._pack_block and isinstance(raw, bytearray):
-            # Moving (122) .. Present Temperature (146) are one contiguous run of the table:
-            # one pack instead of ten register writes (this runs for every servo, every 1 ms).
-            _PRESENT_BLOCK.pack_into(raw, _PRESENT_BLOCK_ADDRESS, *values)
+        block = self._present_block
+        if block is not None and isinstance(raw, bytearray):
+            # Moving .. Present Temperature are one contiguous run of the table: one pack
+            # instead of ten register writes (this runs for every servo, every 1 ms).
+            block[0].pack_into(raw, block[1], *values)
         else:
             for name, value in zip(self._present_names, values):
                 regs.set(name, value)
 
         errors = 0
         if voltage_raw < get('min_voltage_limit') or voltage_raw > get('max_voltage_limit'):
-            errors |= ERROR_INPUT_VOLTAGE
+            errors |= self._error_input_voltage
         if temperature_raw > get('temperature_limit'):
-            errors |= ERROR_OVERHEATING
+            errors |= self._error_overheating
         if overloaded_span:
-            errors |= ERROR_OVERLOAD
+            errors |= self._error_overload
         return errors

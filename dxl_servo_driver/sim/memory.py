@@ -1,14 +1,14 @@
 """
 One simulated servo's control-table memory: EEPROM and RAM, access, ranges, limits, indirection.
 
-The layout is the servo's model's (models.Model; the seed's model 1030 by default): its items,
-its reserved addresses (read 0, a write is an access error), its operating modes (another value
-is a data range error) and its indirect banks. Each model's layout is compiled once (Table) and
-shared by every servo of that model.
+The layout is the servo's model's (models.Model; the XM430 manual's model 1030 by default): its
+items, its reserved addresses (read 0, a write is an access error), its operating modes (another
+value is a data range error) and its indirect banks. Each model's layout is compiled once (Table)
+and shared by every servo of that model, with the addresses the servo reads on every packet.
 
 Two ways in:
 - get()/set() by name: raw internal access for the physics and the servo's own bookkeeping
-  (no access or range checks), the register store protocol of interfaces.md;
+  (no access or range checks), the register store protocol of dynamics.RegisterStore;
 - read()/plan_write()/commit(): what the bus sees, with the manual's checks, raising TableError
   with the status error code.  A write is planned on a copy and committed whole, so a packet with
   any error writes nothing.
@@ -20,7 +20,8 @@ from typing import Callable
 from dxl_servo_driver.models import Item, Model, model_for, ModelError
 from dxl_servo_driver.models.layout import EEPROM_END
 from dxl_servo_driver.models.xm430 import (
-    EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, TABLE_SIZE)
+    EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, MODEL_NUMBER, MODEL_NUMBERS,
+    TABLE_SIZE)
 from dxl_servo_driver.protocol import ErrorCode
 
 _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
@@ -28,8 +29,10 @@ _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h'
 _U16 = struct.Struct('<H')
 # Goal PWM / Goal Current power on at these (EEPROM) limits, where the model has them.
 _GOALS_FROM_LIMITS = (('goal_pwm', 'pwm_limit'), ('goal_current', 'current_limit'))
-SEED_MODEL = model_for(1030)
-_SEED_NUMBERS = frozenset((1020, 1030))  # the seed's control table, plus later items
+# The XM430 manual's model (1030): a servo's model unless one is given.
+MANUAL_MODEL = model_for(MODEL_NUMBER)
+# The models whose table is the XM430 manual's (plus later items) and whose physics is its fit.
+MANUAL_MODEL_NUMBERS = frozenset(MODEL_NUMBERS)
 
 
 class TableError(Exception):
@@ -50,8 +53,8 @@ class Table:
     def __init__(self, model: Model) -> None:
         self.model = model
         self.by_name: dict[str, Item] = {item.name: item for item in model.items}
-        # The seed's table reaches 661 (its second indirect bank); its models never end sooner.
-        self.size = max(model.table_end, TABLE_SIZE) if model.number in _SEED_NUMBERS \
+        # The manual's table reaches 661 (its second indirect bank); its models never end sooner.
+        self.size = max(model.table_end, TABLE_SIZE) if model.number in MANUAL_MODEL_NUMBERS \
             else model.table_end
         # address -> the item covering it (None for reserved addresses)
         self.owner: list[Item | None] = [None] * self.size
@@ -80,8 +83,26 @@ class Table:
         self.goals_from_limits = tuple(
             (goal, limit) for goal, limit in _GOALS_FROM_LIMITS
             if goal in self.by_name and limit in self.by_name)
-        self.torque_address = self.by_name['torque_enable'].address
         self.homing = self.by_name['homing_offset']
+        # The one-byte items read by address on every packet (Memory.raw[address]).
+        self.torque_address = self._byte_address('torque_enable')
+        self.id_address = self._byte_address('id')
+        self.baud_address = self._byte_address('baud_rate')
+        self.return_delay_address = self._byte_address('return_delay_time')
+        self.status_return_address = self._byte_address('status_return_level')
+        self.error_status_address = self._byte_address('hardware_error_status')
+        # Hardware Error Status: bit of each error name, and every bit that means something.
+        self.error_bits: dict[str, int] = {
+            name: bit for bit, name in model.hardware_error_bits.items()}
+        self.error_mask = 0
+        for bit in model.hardware_error_bits:
+            self.error_mask |= bit
+
+    def _byte_address(self, name: str) -> int:
+        item = self.by_name[name]
+        if item.size != 1:
+            raise ValueError(f'{self.model.label}: {name} is {item.size} bytes, not one')
+        return item.address
 
     def _setter(self, item: Item) -> tuple[Callable[..., None], int, int, int]:
         bits = 8 * item.size
@@ -125,7 +146,7 @@ class Memory:
     """The control table of one servo; EEPROM survives reset_ram(), RAM does not."""
 
     def __init__(self, model: Model | None = None, firmware_version: int | None = None) -> None:
-        table = table_for(SEED_MODEL if model is None else model)
+        table = table_for(MANUAL_MODEL if model is None else model)
         self.table = table
         self.model = table.model
         self._firmware = self._check_firmware(table.model, firmware_version)
@@ -152,11 +173,6 @@ class Memory:
             raise ValueError(f'firmware {firmware_version} has the {matching.label} table, '
                              f'not the {model.label} one')
         return firmware_version
-
-    @property
-    def table_size(self) -> int:
-        """Return one past the last address of the table."""
-        return self.table.size
 
     def has(self, name: str) -> bool:
         """Return whether the model's table has this item."""
@@ -189,15 +205,17 @@ class Memory:
     # ---- resets -------------------------------------------------------------------------------
     def factory_reset(self, keep_id: bool = False, keep_baud: bool = False) -> None:
         """Restore the factory EEPROM (optionally keeping id / baud) and the RAM defaults."""
-        saved_id, saved_baud = self._data[7], self._data[8]
-        for item in self.table.eeprom:
+        table = self.table
+        data = self._data
+        saved_id, saved_baud = data[table.id_address], data[table.baud_address]
+        for item in table.eeprom:
             self.set(item.name, item.initial)
         if self._firmware is not None:
             self.set('firmware_version', self._firmware)
         if keep_id:
-            self._data[7] = saved_id
+            data[table.id_address] = saved_id
         if keep_baud:
-            self._data[8] = saved_baud
+            data[table.baud_address] = saved_baud
         self.reset_ram()
 
     def reset_ram(self) -> None:

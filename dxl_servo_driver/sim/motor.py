@@ -8,8 +8,8 @@ period), so the winding current follows the applied voltage algebraically:
     i = (duty * V_in - K_e * w) / R
     J * dw/dt = K_t * i - B * w - sign(w) * (T_c + load)
 
-The seed's fit (SEED, XM430-W350 datasheet: 353.5:1, minimax of the relative errors against the
-seed's three voltage points, see test_sim_physics.py for the check):
+The XM430 manual's fit (MANUAL_MOTOR, its XM430-W350 datasheet: 353.5:1, minimax of the relative
+errors against the manual's three voltage points, see test_sim_physics.py for the check):
 
 * R from the stall currents V / I = 5.29, 5.22, 5.48 ohm -> R = 5.35 ohm
   (stall current errors -1.2 %, -2.5 %, +2.5 %).
@@ -22,13 +22,13 @@ seed's three voltage points, see test_sim_physics.py for the check):
 * Reflected inertia J = 0.015 kg m^2 (rotor ~1.2e-7 kg m^2 times 353.5^2): mechanical time
   constant J / (K_t K_e / R + B) = 18 ms, so a step reaches speed in tens of ms.
 
-Models 1020 and 1030 use SEED unchanged: the seed's manual is their authority, and its figures
-are the XM430-W350 ones for both (models.SEED_DIFFERENCES). Every other model gets the seed's
+Models 1020 and 1030 use MANUAL_MOTOR unchanged: the manual is their authority, and its figures
+are the XM430-W350 ones for both (models.MANUAL_DIFFERENCES). Every other model gets the manual's
 motor scaled to its datasheet point at its nominal voltage (fit_motor), fitted exactly there:
 
 * T_c scaled by stall torque (0.02 N m per 4.1 N m), J by the gear ratio squared (same rotor);
 * R = V / I_stall, K_t = (T_stall + T_c) / I_stall;
-* K_e and B from the no-load speed, keeping the seed's no-load current as the same share of the
+* K_e and B from the no-load speed, keeping the manual's no-load current as the same share of the
   stall current (3.55 %). A fixed gear efficiency would not do: with eta = 0.75 the XH430-V210's
   back-EMF at its no-load speed would exceed its supply (negative viscous friction).
 
@@ -37,22 +37,20 @@ linearly with the supply, as in any constant-parameter motor.
 
 Thermal (all models alike: the datasheets give nothing to fit): one thermal mass to ambient,
 heated by the winding loss i^2 R plus the 40 mA standby current of the electronics: 4 degC/W
-and a 300 s time constant (the seed at 12 V stall heats by ~100 degC towards equilibrium, a few
-minutes to trip 80 degC). The winding resistance is kept constant.
+and a 300 s time constant (the manual's motor at 12 V stall heats by ~100 degC towards
+equilibrium, a few minutes to trip 80 degC). The winding resistance is kept constant.
 """
 
 from dataclasses import dataclass
 import math
 
 from dxl_servo_driver.models import Model, VoltagePoint
+from dxl_servo_driver.sim.memory import MANUAL_MODEL, MANUAL_MODEL_NUMBERS
 
-GEAR_RATIO = 353.5
-PULSES_PER_REV = 4096
-PULSE_PER_RAD = PULSES_PER_REV / (2.0 * math.pi)
-RPM_PER_VELOCITY_UNIT = 0.229
-AMPERE_PER_CURRENT_UNIT = 0.00269
-PWM_FULL_RAW = 885            # 885 = 100 % duty
-VOLT_PER_VOLTAGE_UNIT = 0.1
+# The manual's datasheet (its model's physics): the gear ratio, and the point at the nominal
+# 12 V (stall torque, stall current) that scales the fit to the other models.
+GEAR_RATIO = MANUAL_MODEL.physics.gear_ratio
+MANUAL_POINT = MANUAL_MODEL.physics.nominal
 
 RESISTANCE_OHM = 5.35
 TORQUE_CONSTANT_NM_A = 1.7905
@@ -65,12 +63,6 @@ INERTIA_KG_M2 = 0.015
 STANDBY_CURRENT_A = 0.040
 THERMAL_RESISTANCE_C_W = 4.0
 THERMAL_TIME_CONSTANT_S = 300.0
-
-# The seed's datasheet point at 12 V (stall torque N m, stall current A): the scale of the fit.
-SEED_STALL_TORQUE_NM = 4.1
-SEED_STALL_CURRENT_A = 2.3
-# Model numbers whose physics is the seed's fit itself.
-SEED_MODEL_NUMBERS = frozenset((1020, 1030))
 
 
 @dataclass(frozen=True)
@@ -116,8 +108,8 @@ class Motor:
         return equilibrium_c + (temperature_c - equilibrium_c) * decay
 
 
-SEED = Motor(GEAR_RATIO, RESISTANCE_OHM, TORQUE_CONSTANT_NM_A, BACK_EMF_V_S_RAD,
-             COULOMB_FRICTION_NM, VISCOUS_FRICTION_NM_S_RAD, INERTIA_KG_M2)
+MANUAL_MOTOR = Motor(GEAR_RATIO, RESISTANCE_OHM, TORQUE_CONSTANT_NM_A, BACK_EMF_V_S_RAD,
+                     COULOMB_FRICTION_NM, VISCOUS_FRICTION_NM_S_RAD, INERTIA_KG_M2)
 
 
 def rad_s_to_rpm(rad_s: float) -> float:
@@ -130,22 +122,23 @@ def rpm_to_rad_s(rpm: float) -> float:
     return rpm * 2.0 * math.pi / 60.0
 
 
-def _seed_no_load_share() -> float:
-    """Return the seed's no-load current at 12 V over its datasheet stall current."""
-    volts = 12.0
-    current_a = (volts - BACK_EMF_V_S_RAD * SEED.no_load_speed_rad_s(volts)) / RESISTANCE_OHM
-    return current_a / SEED_STALL_CURRENT_A
+def _manual_no_load_share() -> float:
+    """Return the manual's no-load current at 12 V over its datasheet stall current."""
+    volts = MANUAL_POINT.voltage_v
+    current_a = (volts - BACK_EMF_V_S_RAD * MANUAL_MOTOR.no_load_speed_rad_s(volts)) \
+        / RESISTANCE_OHM
+    return current_a / MANUAL_POINT.stall_current_a
 
 
-NO_LOAD_CURRENT_SHARE = _seed_no_load_share()
+NO_LOAD_CURRENT_SHARE = _manual_no_load_share()
 
 
 def fit_motor(gear_ratio: float, point: VoltagePoint) -> Motor:
-    """Return the seed's motor scaled to match one datasheet point exactly (see above)."""
+    """Return the manual's motor scaled to match one datasheet point exactly (see above)."""
     volts = point.voltage_v
     stall_a = point.stall_current_a
     speed_rad_s = rpm_to_rad_s(point.no_load_speed_rpm)
-    friction_nm = COULOMB_FRICTION_NM * point.stall_torque_nm / SEED_STALL_TORQUE_NM
+    friction_nm = COULOMB_FRICTION_NM * point.stall_torque_nm / MANUAL_POINT.stall_torque_nm
     r_ohm = volts / stall_a
     kt = (point.stall_torque_nm + friction_nm) / stall_a
     no_load_a = NO_LOAD_CURRENT_SHARE * stall_a
@@ -160,12 +153,12 @@ _MOTORS: dict[int, tuple[Model, Motor]] = {}
 
 
 def motor_for(model: Model) -> Motor:
-    """Return the motor of a model: SEED for 1020/1030, else fit_motor at its nominal point."""
+    """Return a model's motor: MANUAL_MOTOR for 1020/1030, else fit_motor at its nominal point."""
     cached = _MOTORS.get(id(model))
     if cached is not None and cached[0] is model:
         return cached[1]
-    if model.number in SEED_MODEL_NUMBERS:
-        fitted = SEED
+    if model.number in MANUAL_MODEL_NUMBERS:
+        fitted = MANUAL_MOTOR
     else:
         fitted = fit_motor(model.physics.gear_ratio, model.physics.nominal)
     _MOTORS[id(model)] = (model, fitted)
@@ -173,25 +166,25 @@ def motor_for(model: Model) -> Motor:
 
 
 def stall_current_a(volts: float) -> float:
-    """Steady current of the seed's motor with the horn held still at full duty."""
-    return SEED.stall_current_a(volts)
+    """Steady current of the manual's motor with the horn held still at full duty."""
+    return MANUAL_MOTOR.stall_current_a(volts)
 
 
 def stall_torque_nm(volts: float) -> float:
-    """Torque the seed's motor delivers to a load holding the horn still at full duty."""
-    return SEED.stall_torque_nm(volts)
+    """Torque the manual's motor delivers to a load holding the horn still at full duty."""
+    return MANUAL_MOTOR.stall_torque_nm(volts)
 
 
 def no_load_speed_rad_s(volts: float) -> float:
-    """Steady free-running speed of the seed's motor at full duty."""
-    return SEED.no_load_speed_rad_s(volts)
+    """Steady free-running speed of the manual's motor at full duty."""
+    return MANUAL_MOTOR.no_load_speed_rad_s(volts)
 
 
 def heat_power_w(current_sq_a2: float, volts: float) -> float:
-    """Heat dissipated by the seed's motor: i^2 R plus the standby electronics."""
-    return SEED.heat_power_w(current_sq_a2, volts)
+    """Heat dissipated by the manual's motor: i^2 R plus the standby electronics."""
+    return MANUAL_MOTOR.heat_power_w(current_sq_a2, volts)
 
 
 def thermal_step(temperature_c: float, ambient_c: float, power_w: float, dt_s: float) -> float:
-    """Exact first-order response of the seed's thermal mass over dt_s at constant power."""
-    return SEED.thermal_step(temperature_c, ambient_c, power_w, dt_s)
+    """Exact first-order response of the manual's thermal mass over dt_s at constant power."""
+    return MANUAL_MOTOR.thermal_step(temperature_c, ambient_c, power_w, dt_s)

@@ -37,14 +37,14 @@ import struct
 from typing import Callable, Protocol
 
 from dxl_servo_driver.models import Model, modes
+from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
 from dxl_servo_driver.protocol import (
-    ALERT_BIT, BROADCAST_ID, encode_status, ErrorCode, fast_sync_size, Instruction,
-    MAX_PACKET_LENGTH, ParseEvent)
+    ALERT_BIT, BROADCAST_ID, CLEAR_MULTI_TURN, encode_status, ErrorCode, fast_sync_size,
+    Instruction, MAX_ID, MAX_PACKET_LENGTH, ParseEvent, RETURN_DELAY_UNIT_S)
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
 
-CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
-TICK_PERIOD_MS = 32768   # the Realtime Tick counts 0..32767 ms, then wraps
+# The Realtime Tick counts 0..its maximum (32767) ms, then wraps.
 _ADDR_LEN = struct.Struct('<HH')
 _U16 = struct.Struct('<H')
 _KIND_PING, _KIND_READ, _KIND_OTHER = 0, 1, 2
@@ -55,7 +55,7 @@ _SYNC_BULK = (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.FAST_SY
 
 
 class Dynamics(Protocol):
-    """What the servo needs from dynamics.ServoDynamics (see interfaces.md)."""
+    """What the servo needs from dynamics.ServoDynamics."""
 
     def advance(self, dt_s: float, regs: Memory) -> int:
         """Run the physics for dt_s; return detected hardware error bits."""
@@ -88,16 +88,26 @@ class SimServo:
     def __init__(self, servo_id: int, dynamics: Dynamics, now_s: float,
                  boot_time_s: float = 0.1, model: Model | None = None,
                  firmware_version: int | None = None) -> None:
-        if not 0 <= servo_id <= 252:
-            raise ValueError(f'servo id {servo_id} outside 0..252')
+        if not 0 <= servo_id <= MAX_ID:
+            raise ValueError(f'servo id {servo_id} outside 0..{MAX_ID}')
         self.memory = Memory(model, firmware_version)
         self.model = self.memory.model
+        # The one-byte registers read on every packet, by address (the model's, looked up once).
+        table = self.memory.table
+        self._id_address = table.id_address
+        self._baud_address = table.baud_address
+        self._return_delay_address = table.return_delay_address
+        self._status_return_address = table.status_return_address
+        self._error_status_address = table.error_status_address
+        self._error_mask = table.error_mask
         # Registers of one model moved by another's physics would be a servo that lies.
         dynamics_model = getattr(dynamics, 'model', self.model)
         if dynamics_model is not self.model:
             raise ValueError(f'the dynamics are of the {dynamics_model.label}, the table of the '
                              f'{self.model.label}')
         self._bauds = self.model.bauds
+        # A Baud Rate value without a baud (not written by a bus: the table refuses it).
+        self._fallback_bps = self._bauds[self.model.item('baud_rate').initial]
         self.memory.set('id', servo_id)
         self.dynamics = dynamics
         self.boot_time_s = boot_time_s
@@ -112,17 +122,17 @@ class SimServo:
     @property
     def servo_id(self) -> int:
         """Return the id the servo answers to now."""
-        return self.memory.raw[7]  # id (7), one byte
+        return self.memory.raw[self._id_address]
 
     @property
     def baud_bps(self) -> int:
         """Return the baud rate the servo listens at."""
-        return self._bauds.get(self.memory.raw[8], 57600)  # baud_rate (8)
+        return self._bauds.get(self.memory.raw[self._baud_address], self._fallback_bps)
 
     @property
     def return_delay_s(self) -> float:
-        """Return the Return Delay Time (register 9 x 2 us)."""
-        return self.memory.raw[9] * 2e-6  # return_delay_time (9)
+        """Return the Return Delay Time (the register times its unit, 2 us)."""
+        return self.memory.raw[self._return_delay_address] * RETURN_DELAY_UNIT_S
 
     def responsive(self, now_s: float) -> bool:
         """Return whether the servo hears packets at now_s (powered and booted)."""
@@ -170,7 +180,7 @@ class SimServo:
 
     def latch_errors(self, bits: int) -> None:
         """Latch hardware error bits; drop torque for those set in `shutdown`."""
-        bits &= 0x3D  # bits 7, 6, 1 of the Shutdown table are unused
+        bits &= self._error_mask  # the model's bits only (7, 6 and 1 are unused)
         if not bits:
             return
         memory = self.memory
@@ -249,10 +259,10 @@ class SimServo:
 
     def _status(self, reply_id: int, error: int, params: bytes, kind: int) -> bytes | None:
         raw = self.memory.raw
-        level = raw[68]  # status_return_level
+        level = raw[self._status_return_address]
         if kind == _KIND_READ and level < 1 or kind == _KIND_OTHER and level < 2:
             return None
-        if raw[70]:  # hardware_error_status
+        if raw[self._error_status_address]:
             error |= ALERT_BIT
         return encode_status(reply_id, error, params)
 
@@ -405,7 +415,8 @@ class SimServo:
         memory = self.memory
         if not self.model.has_fast_sync_read(memory.get('firmware_version')):
             return None
-        if len(params) < 5 or my_id not in params[4:] or memory.raw[68] < 1:
+        if (len(params) < 5 or my_id not in params[4:]
+                or memory.raw[self._status_return_address] < 1):
             return None
         address, length = _ADDR_LEN.unpack_from(params)
         if fast_sync_size(length, len(params) - 4) > MAX_PACKET_LENGTH:
@@ -416,7 +427,7 @@ class SimServo:
         except TableError as exc:
             data = bytes(length)
             error = exc.code
-        if memory.raw[70]:  # hardware_error_status
+        if memory.raw[self._error_status_address]:
             error |= ALERT_BIT
         return bytes((error, my_id)) + data
 

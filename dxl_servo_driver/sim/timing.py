@@ -1,7 +1,7 @@
 """
 Wire timing of a half-duplex Dynamixel bus, shared by the in-process port and the pty server.
 
-Model (SPEC section 3, `--timing wire`):
+Model (README.md, The simulator: `--timing wire`):
 
 * A UART frame is 10 bits per byte (start, 8 data, stop), so n bytes take n * 10 / baud seconds.
 * An instruction of n bytes whose first byte leaves the host at t0 reaches the servos at
@@ -23,7 +23,8 @@ import threading
 import time
 from typing import Callable, Iterable, Protocol
 
-BITS_PER_BYTE = 10  # 1 start + 8 data + 1 stop bit, no parity (Dynamixel UART framing)
+from dxl_servo_driver.protocol import BITS_PER_BYTE
+
 SPIN_S = 200e-6     # hybrid wait: sleep until this long before the deadline, then spin
 FINE_SPIN_S = 40e-6  # the same once the thread's timer slack is 1 ns (sleeps wake ~10 us late)
 _PR_SET_TIMERSLACK = 29

@@ -1,29 +1,29 @@
 """
-Velocity profiles of the seed's "Profile Velocity(112)" section, as pure functions.
+Velocity profiles of the XM430 manual's "Profile Velocity(112)" section, as pure functions.
 
-Units (from the seed's formulas t1 = 64 * V / A ms and t2 = 64 * dPos / V ms):
+Units (from the manual's formulas t1 = 64 * V / A ms and t2 = 64 * dPos / V ms):
 
 * one velocity unit (0.229 rpm = 0.01563 pulse/ms) is taken as exactly 1/64 pulse per ms, so a
-  profile velocity V moves V / 64 pulses per ms (0.05 % off the true unit; the seed's formulas use
-  the same rounding);
+  profile velocity V moves V / 64 pulses per ms (0.05 % off the true unit; the manual's formulas
+  use the same rounding);
 * one acceleration unit is 1/64 velocity unit per ms, so A adds A / 64 velocity units per ms, that
   is A / 4096 pulses per ms^2.
 
 Derivation of the triangular case (start at rest, accelerate at a = A / 4096 pulse/ms^2 to a peak
 v_p, decelerate at a back to 0): dPos = v_p^2 / a, so v_p = sqrt(a * dPos) pulse/ms; in velocity
-units V_tri = 64 * v_p = sqrt(A * dPos). The seed uses the triangular profile when
+units V_tri = 64 * v_p = sqrt(A * dPos). The manual uses the triangular profile when
 V_tri <= V. Its travel time is t3 = 2 * v_p / a = 2 * 64 * V_tri / A = 128 * sqrt(dPos / A) ms.
 The trapezoid accelerates for t1 = 64 * V / A ms, cruises and decelerates for t1, and takes
 t3 = t1 + t2 with t2 = 64 * dPos / V ms.
 
-Jerk smoothing is not modelled (the seed says the real travel time may be longer than t3); the
+Jerk smoothing is not modelled (the manual says the real travel time may be longer than t3); the
 simulated trajectory ends exactly at t3.
 """
 
 from dataclasses import dataclass
 import math
 
-# Moving Status (123) profile type bits; the seed's table repeats "Rectangular" for 0x00, which
+# Moving Status (123) profile type bits; the manual's table repeats "Rectangular" for 0x00, which
 # is the Step profile (no profile).
 PROFILE_STEP = 0x00
 PROFILE_RECTANGULAR = 0x10
@@ -77,7 +77,7 @@ class PositionProfile:
 
 
 def classify(profile_velocity_raw: int, profile_acceleration_raw: int, delta_pulse: float) -> int:
-    """Profile type the seed's selection table gives for a start at rest."""
+    """Return the profile type the manual's selection table gives for a start at rest."""
     if profile_velocity_raw == 0:
         return PROFILE_STEP
     if profile_acceleration_raw == 0:
@@ -88,7 +88,7 @@ def classify(profile_velocity_raw: int, profile_acceleration_raw: int, delta_pul
 
 def travel_time_ms(profile_velocity_raw: int, profile_acceleration_raw: int,
                    delta_pulse: float) -> float:
-    """Seed formula for the travel time t3 (ms) of a move starting at rest."""
+    """Return the manual's travel time t3 (ms) of a move starting at rest."""
     kind = classify(profile_velocity_raw, profile_acceleration_raw, delta_pulse)
     distance = abs(delta_pulse)
     if kind == PROFILE_STEP:
@@ -106,7 +106,7 @@ def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse
     """
     Plan a move from (start, start velocity) to rest at goal.
 
-    A non-zero start velocity is the seed's velocity override: the new profile continues from the
+    A non-zero start velocity is the manual's velocity override: the new profile continues from the
     present trajectory velocity (decelerating first when moving away from the goal or too fast to
     stop before it).
     """

@@ -14,7 +14,7 @@ SIGINT/SIGTERM end it cleanly (exit 0) and remove the --link symlink. Standard i
 EOF does not stop it.
 
 --models gives each servo's model, by number or name (XL430-W250, any case): one for every id,
-or one per id in --ids order; the default is the seed's model 1030. --firmware sets the
+or one per id in --ids order; the default is the XM430 manual's model 1030. --firmware sets the
 Firmware Version every servo reports, which also picks the table of models whose table changed
 with the firmware (the X330's indirect block, from version 53 on).
 
@@ -45,7 +45,7 @@ from dxl_servo_driver.models import Model, model_for, model_named, ModelError, x
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
-from dxl_servo_driver.sim.memory import Memory
+from dxl_servo_driver.sim.memory import MANUAL_MODEL, Memory
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler
 from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
@@ -114,7 +114,7 @@ class GoalTracer:
         self._out = out
         self._bus = bus
         self._parser = protocol.StreamParser()
-        goal = model_for(xm430.MODEL_NUMBER).item('goal_position')
+        goal = MANUAL_MODEL.item('goal_position')
         self._address = goal.address
         self._goal = list(range(goal.address, goal.address + goal.size))
         # id -> the servo's memory: this runs in the simulator's I/O thread, on every write,
@@ -148,7 +148,8 @@ class GoalTracer:
                 self._log(now_s, servo_id, chunk[:size])
             return
         memory = self._memories.get(servo_id)
-        if memory is None or memory.raw[7] != servo_id:   # id (7): a servo may change its id
+        # A servo may change its id: its memory is then looked up again.
+        if memory is None or memory.raw[memory.table.id_address] != servo_id:
             self._memories = {sid: self._bus.servo(sid).memory for sid in self._bus.servo_ids()}
             memory = self._memories.get(servo_id)
             if memory is None:
@@ -352,9 +353,13 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     bauds = sorted(xm430.BAUD_RATES.values())
+    delay = MANUAL_MODEL.item('return_delay_time')
+    delay_range = f'{delay.minimum}..{delay.maximum}'
+    delay_unit_us = protocol.RETURN_DELAY_UNIT_S * 1e6
     parser = _OneLineParser(prog='virtual_bus',
                             description='Simulated Dynamixel servos on a pseudo-terminal.')
-    parser.add_argument('--ids', type=int, nargs='+', required=True, help='servo ids (0..252)')
+    parser.add_argument('--ids', type=int, nargs='+', required=True,
+                        help=f'servo ids (0..{control.MAX_SERVO_ID})')
     parser.add_argument('--baud', type=int, default=57600,
                         help=f'servo baud rate, one of {bauds} (default 57600)')
     parser.add_argument('--link', default=None, help='make this symlink to the device')
@@ -362,7 +367,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--latency-ms', type=float, default=0.0,
                         help='USB adapter latency timer (wire timing only)')
     parser.add_argument('--return-delay-time', type=int, default=None, metavar='RAW',
-                        help='Return Delay Time register (2 us units, 0..254)')
+                        help=f'Return Delay Time register ({delay_unit_us:g} us units, '
+                             f'{delay_range})')
     parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
     parser.add_argument('--models', nargs='+', default=None, metavar='M',
                         help='model number or name of the servos (XL430-W250, any case): one '
@@ -387,8 +393,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error('--latency-ms must be >= 0')
     if args.latency_ms > 0.0 and args.timing != 'wire':
         parser.error('--latency-ms needs --timing wire')
-    if args.return_delay_time is not None and not 0 <= args.return_delay_time <= 254:
-        parser.error('--return-delay-time must be 0..254')
+    if args.return_delay_time is not None and \
+            not delay.minimum <= args.return_delay_time <= delay.maximum:
+        parser.error(f'--return-delay-time must be {delay_range}')
     if args.firmware is not None and not 0 <= args.firmware <= 255:
         parser.error(f'--firmware {args.firmware}: expected 0..255')
     try:
