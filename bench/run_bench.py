@@ -56,7 +56,7 @@ CLOCK_TICK_S = 1.0 / os.sysconf('SC_CLK_TCK')
 SDK_READ_BYTES = 10     # present_current + present_velocity + present_position
 WRITE_BYTES = 4         # goal_position
 HEALTH_RATE_HZ = 10.0   # the node reads its whole state block at state_rate (default 10 Hz)
-SEED_UNITS = units_for(model_for(1030))   # the simulated servos are the seed's model
+MANUAL_UNITS = units_for(model_for(1030))   # the simulated servos are the XM430 manual's
 
 
 def percentile(values: List[float], fraction: float) -> float:
@@ -226,7 +226,7 @@ class NodeUnderTest:
                 k += 1
                 msg = self._msg_type()
                 msg.name = self.joints
-                msg.value = [SEED_UNITS.position_to_rad(raw)] * self.n
+                msg.value = [MANUAL_UNITS.position_to_rad(raw)] * self.n
                 published.append((time.monotonic(), raw))
                 self.publisher.publish(msg)
                 next_command += 1.0 / COMMAND_RATE_HZ
@@ -379,7 +379,7 @@ def node_rate(run: Dict[str, Any]) -> float:
 
 def two_buses(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
     """
-    Measure two buses at once, one node each (as SPEC runs more buses): alone, then together.
+    Measure two buses at once, one node each (more buses, more nodes): alone, then together.
 
     On two cores the two simulators, two nodes and the counting client share the machine, so
     'together' against 'alone' is what a second bus costs the first here.
@@ -499,7 +499,7 @@ def machine() -> Dict[str, Any]:
 
 
 def targets(rows: List[Dict[str, Any]]) -> List[str]:
-    """Check SPEC section 5's targets at N = 12, 4 Mbps."""
+    """Check the benchmark's targets at N = 12, 4 Mbps (README, Benchmark)."""
     at = {row['variant']: row for row in rows if row['n'] == 12 and row['baud'] == 4_000_000}
     if not {'bus', 'node', 'sdk_baseline'} <= set(at):
         return ['N = 12 at 4 Mbps was not measured']

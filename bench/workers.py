@@ -72,8 +72,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     clocks = {servo_id: TickClock() for servo_id in ids}
     linger = False
     while time.monotonic() - wall0 < seconds:
-        result = bus.end_sync_read(bus.begin_sync_read(block.read_address, length, ids, fast,
-                                                       linger))
+        result = bus.begin_sync_read(block.read_address, length, ids, fast, linger).collect()
         received = time.monotonic()
         linger = False
         for servo_id in ids:

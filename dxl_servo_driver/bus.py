@@ -1,39 +1,43 @@
 """
-The bus layer: one serial port of Dynamixel servos, Protocol 2.0 transactions.
+The bus layer: the transactions of one port of Dynamixel servos (Protocol 2.0).
 
-This is the only layer that touches the serial device. Every transaction follows one rule:
-a reply is accepted only when it answers the request just sent. Before a request goes out,
-whatever is waiting on the port (a late reply of an earlier request) is dropped; then the
-replies are framed by protocol.scan_frames and each is checked: a status packet, from the id
-asked, with exactly the parameter length the request implies (and, in a sync read, in the
-order of the ids asked). Anything else is counted and discarded: the local echo of our own
-request (half-duplex adapters without echo suppression, learned and then skipped cheaply),
-replies to other ids, replies of the wrong length, line noise, truncated packets.
+Every transaction follows one rule: a reply is accepted only when it answers the request just
+sent. Before a request goes out, whatever is waiting on the port (a late reply of an earlier
+request) is dropped; then the replies are framed (the framer: protocol.PROTOCOL_2 today, the
+seam a Protocol 1.0 framer plugs into) and every frame goes through one classifier: our own
+request coming back (the local echo of a half-duplex adapter: learned, then expected and skipped
+cheaply), a status packet from an id asked with the parameter length the request implies (an
+answer), a corrupted frame from an id asked, or anything else (a reply to another id or of
+another length, an earlier reply again, line noise), counted and discarded. One collector reads
+and classifies for every transaction: one-off, broadcast ping, sync read. The Fast Sync Read's
+one status packet for all servos has its own parse (its parts, each with a CRC of all before
+it) inside the same collector.
 
 No status packet carries a sequence number, so a late reply of an identical earlier request
 looks like the answer to this one. The bus therefore keeps a "dirty" flag for a while after any
 anomaly (a timeout, a discarded or corrupted reply, bytes waiting before a request): while it
 is set, one-off transactions read on to their deadline and take the last matching reply (replies
-leave the bus in order), and the cycle's state reads carry the servos' Realtime Tick so the
-caller can date every sample (see driver/clock.py).
+leave the bus in order). The cycle's state reads carry the servos' Realtime Tick, so the caller
+dates every sample (driver/clock.py).
 
 Every wait is a blocking read with an absolute deadline on the monotonic clock, computed from
 the bytes expected, the baud rate, the servos' Return Delay Time and the USB adapter's latency
-timer: a device that never stops sending cannot hold a transaction past it.
+timer: a device that never stops sending cannot hold a transaction past it. The serial device
+itself is serial_port.py's (or the simulator's port): the bus sees a RawPort.
 """
 
 from dataclasses import dataclass, field
 import struct
 import threading
 import time
-from typing import Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import Callable, Dict, Iterable, List, Optional, Sequence, Set, Tuple, Union
 
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.models import Item
 from dxl_servo_driver.protocol import (
-    BITS_PER_BYTE, BROADCAST_ID, crc16, encode_instruction, ErrorCode, fast_sync_head,
-    fast_sync_size, Frame, HEADER, Instruction, MAX_ID, parse_fast_sync_status, scan_frames,
-    STATUS_OVERHEAD, unstuff)
+    ALERT_BIT, BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, crc16, ERROR_CODE_MASK, ErrorCode,
+    fast_sync_head, fast_sync_size, Frame, Framer, HEADER, Instruction, MAX_ID,
+    parse_fast_sync_status, PROTOCOL_2, STATUS_OVERHEAD)
 from dxl_servo_driver.serial_port import RawPort
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
@@ -60,6 +64,8 @@ ERROR_TEXT: Dict[int, str] = {
 ECHO_MISSES_TO_FORGET = 3
 # The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
 BROADCAST_PING_PER_ID_S = 0.003
+# What the classifier makes of a frame.
+ECHO, ANSWER, CORRUPT, STRAY = 'echo', 'answer', 'corrupt', 'stray'
 
 
 @dataclass
@@ -70,25 +76,10 @@ class Counters:
     timeouts: int = 0          # a servo's reply missing at the deadline
     corrupt: int = 0           # replies from a servo we asked that failed their CRC
     status_errors: int = 0     # replies carrying an error code
-    stale: int = 0             # replies discarded: wrong id, length, order, or a duplicate
+    stale: int = 0             # replies discarded: wrong id, length, order, or a repeat
     echoes: int = 0            # our own requests seen coming back (local echo)
     flushed_bytes: int = 0     # bytes waiting before a request (late replies, noise)
     deadline_waits: int = 0    # reads that ended at their deadline short of what they asked
-
-
-@dataclass
-class SyncRead:
-    """A sync read on the wire: begin_sync_read() made it, end_sync_read() collects it."""
-
-    address: int
-    length: int
-    ids: Tuple[int, ...]
-    packet: bytes
-    sent_s: float
-    deadline_s: float
-    done: bool = False
-    fast: bool = False   # a Fast Sync Read: one status packet for all
-    linger: bool = False   # read on to the deadline: the last whole answer wins
 
 
 @dataclass
@@ -110,20 +101,130 @@ class SyncResult:
     dated: Dict[int, Tuple[float, float]] = field(default_factory=dict)
 
 
+@dataclass
+class Request:
+    """A request on the wire, as the classifier matches replies against it."""
+
+    packet: bytes
+    ids: Tuple[int, ...]        # the ids that answer it, in the order they answer
+    reply_params: int           # the parameters each answer carries
+    order: Dict[int, int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.order = {servo_id: index for index, servo_id in enumerate(self.ids)}
+
+    def classify(self, frame: Frame) -> str:
+        """Return what a frame is to this request: ECHO, ANSWER, CORRUPT or STRAY."""
+        if not frame.crc_ok:
+            return CORRUPT if frame.servo_id in self.order else STRAY
+        if not frame.is_status:
+            return ECHO if frame.raw == self.packet else STRAY
+        if frame.servo_id not in self.order:
+            return STRAY
+        error, data = frame.status()
+        # An error status may come without the parameters.
+        if len(data) == self.reply_params or (error & ERROR_CODE_MASK and not data):
+            return ANSWER
+        return STRAY
+
+
+@dataclass
+class Collected:
+    """What one collection found: the answers by id (the last wins), and what else came."""
+
+    answers: Dict[int, Tuple[int, int, bytes]] = field(default_factory=dict)  # order, error, data
+    corrupt: Set[int] = field(default_factory=set)   # ids asked whose frame failed its CRC
+    echoed: bool = False
+    discarded: int = 0     # well-formed frames that answered nothing of this request (stale)
+    noise: int = 0         # frames that failed their CRC, from ids not asked
+    frames: int = 0
+    leftover: bool = False   # bytes after the last whole frame
+
+    @property
+    def anomalies(self) -> bool:
+        """Return True when anything but the answers (and our echo) came."""
+        return bool(self.discarded or self.noise or self.corrupt or self.leftover)
+
+
+class SyncRead:
+    """
+    A sync read on the wire, owning the bus while its answers come.
+
+    Made by Bus.begin_sync_read() with the bus lock taken; collect() or abort() (exactly one of
+    them, once, in the same thread) ends it, and they are the only places that lock is released.
+    """
+
+    def __init__(self, bus: 'Bus', request: Request, length: int, address: int, sent_s: float,
+                 deadline_s: float, fast: bool, linger: bool) -> None:
+        self._bus = bus
+        self.request = request
+        self.address = address
+        self.length = length
+        self.sent_s = sent_s
+        self.deadline_s = deadline_s
+        self.fast = fast          # a Fast Sync Read: one status packet for all
+        self.linger = linger      # read on to the deadline: the last whole answer wins
+        self.done = False
+
+    @property
+    def ids(self) -> Tuple[int, ...]:
+        """Return the ids asked, in the order they answer."""
+        return self.request.ids
+
+    @property
+    def packet(self) -> bytes:
+        """Return the request as it went on the wire."""
+        return self.request.packet
+
+    def collect(self) -> SyncResult:
+        """Collect the answers and release the bus."""
+        if self.done:
+            raise RuntimeError('a sync read collected or aborted already')
+        self.done = True
+        try:
+            return self._bus._collect_sync(self)
+        finally:
+            self._bus.lock.release()
+
+    def abort(self) -> None:
+        """
+        Give the read up (idempotent) and wait its answers out, then release the bus.
+
+        Whatever arrives until the read's deadline is its answer: it is read and dropped here,
+        so no later transaction (the next activation's first read, a torque-off) can take it
+        for its own. Later stragglers still find the bus suspicious (dirty).
+        """
+        if self.done:
+            return
+        self.done = True
+        bus = self._bus
+        bus.mark_dirty()
+        try:
+            while time.monotonic() < self.deadline_s:
+                dropped = bus._read(STATUS_OVERHEAD * len(self.ids) + 4096, self.deadline_s,
+                                    to_deadline=True)
+                bus.counters.flushed_bytes += len(dropped)
+        except PortError:
+            pass   # a lost port holds nothing to wait for; its next user finds it lost
+        finally:
+            bus.lock.release()
+
+
 class Bus:
     """
-    One bus of Protocol 2.0 servos on one port. Thread-safe: one transaction at a time.
+    One bus of servos on one port. Thread-safe: one transaction at a time.
 
     The bus never retries on its own; the caller decides what a failure means.
     """
 
     def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
-                 return_delay_s: float = 0.0005) -> None:
+                 return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
         self.port = port
         self.baud_bps = baud_bps
         self.latency_timer_s = latency_timer_s
-        # The largest Return Delay Time expected on this bus (the seed's default is 500 us).
+        # The largest Return Delay Time expected on this bus (the factory default is 500 us).
         self.return_delay_s = return_delay_s
+        self.framer = framer
         self.lock = threading.RLock()
         self.counters = Counters()
         self.echo = False             # learned: the adapter echoes what we send
@@ -131,10 +232,9 @@ class Bus:
         self._dirty_until = 0.0
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...], bool], bytes] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
-        self._pending: Optional[SyncRead] = None
         self._read_tag = 0
 
-    # timing ------------------------------------------------------------------------------
+    # timing and state --------------------------------------------------------------------
     def byte_time_s(self, n_bytes: int) -> float:
         """Return the time n_bytes take on the wire (8N1)."""
         return n_bytes * BITS_PER_BYTE / self.baud_bps
@@ -158,20 +258,6 @@ class Bus:
         """Return True while the bus is suspicious (an anomaly happened lately)."""
         return time.monotonic() < self._dirty_until
 
-    def _echo_seen(self) -> None:
-        """Our own request came back: the adapter echoes (expected in front of every answer)."""
-        self.echo = True
-        self._echo_misses = 0
-        self.counters.echoes += 1
-
-    def _echo_missing(self) -> None:
-        """Note an answered transaction that came without the echo it was expected to carry."""
-        if self.echo:
-            self._echo_misses += 1
-            if self._echo_misses >= ECHO_MISSES_TO_FORGET:
-                self.echo = False
-                self._echo_misses = 0
-
     def mark_dirty(self) -> None:
         """Be suspicious of replies for a while (an anomaly happened)."""
         self._dirty_until = time.monotonic() + DIRTY_HOLD_S
@@ -181,7 +267,7 @@ class Bus:
         with self.lock:
             self.port.close()
 
-    # one-off transactions ------------------------------------------------------------------
+    # the port ------------------------------------------------------------------------------
     def _flush(self) -> None:
         # Bytes waiting before a request are late replies or noise: never an answer to it.
         port = self.port
@@ -218,6 +304,95 @@ class Bus:
             self.counters.deadline_waits += 1
         return data
 
+    # the echo ------------------------------------------------------------------------------
+    def _echo_seen(self) -> None:
+        """Our own request came back: the adapter echoes (expected in front of every answer)."""
+        self.echo = True
+        self._echo_misses = 0
+        self.counters.echoes += 1
+
+    def _echo_missing(self) -> None:
+        """Note an answered transaction that came without the echo it was expected to carry."""
+        if self.echo:
+            self._echo_misses += 1
+            if self._echo_misses >= ECHO_MISSES_TO_FORGET:
+                self.echo = False
+                self._echo_misses = 0
+
+    def _note_echo(self, echoed: bool, answered: bool) -> None:
+        if echoed:
+            self._echo_seen()
+        elif answered:
+            self._echo_missing()
+
+    # the collector -------------------------------------------------------------------------
+    def _collect(self, request: Request, deadline_s: float, buffer: bytearray,
+                 linger: bool, done: Callable[[Collected], bool]) -> Collected:
+        """
+        Read and classify the replies of a request until done() or its deadline.
+
+        buffer holds what was read already. Each id's last answer wins (replies leave the bus
+        in order: a late or repeated one comes before the answer to this request). With linger
+        the replies are read to the deadline; otherwise no more is asked of the port than the
+        answers still missing need (asking more would wait for the deadline).
+        """
+        collected = Collected()
+        reply_size = STATUS_OVERHEAD + request.reply_params
+        max_length = max(2 * (request.reply_params + 4) + 8, len(request.packet))
+        pos = 0
+        while True:
+            final = time.monotonic() >= deadline_s
+            frames, pos = self.framer.scan(buffer, pos, max_length, final)
+            for frame in frames:
+                collected.frames += 1
+                kind = request.classify(frame)
+                if kind == ANSWER:
+                    servo_id = frame.servo_id
+                    if servo_id in collected.answers:
+                        collected.discarded += 1   # an earlier one was late: the last wins
+                    error, data = frame.status()
+                    collected.answers[servo_id] = (collected.frames, error, data)
+                elif kind == ECHO:
+                    collected.echoed = True
+                elif kind == CORRUPT:
+                    collected.corrupt.add(frame.servo_id)
+                elif frame.crc_ok:
+                    collected.discarded += 1
+                else:
+                    collected.noise += 1
+            if final or (not linger and done(collected)):
+                break
+            if linger:
+                buffer += self._read(reply_size, deadline_s, to_deadline=True)
+            else:
+                missing = max(1, len(request.ids) - len(collected.answers))
+                # What the missing answers still lack (the bytes from pos on start one).
+                buffer += self._read(max(1, missing * reply_size - (len(buffer) - pos)),
+                                     deadline_s)
+        collected.leftover = pos < len(buffer)
+        self.counters.stale += collected.discarded
+        return collected
+
+    def _missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
+                 silent_text: str) -> CommError:
+        """Count and return why a servo has no answer: corrupt or silent."""
+        if corrupt:
+            self.counters.corrupt += 1
+            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
+        self.counters.timeouts += 1
+        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
+
+    def _answer(self, servo_id: int, error: int, data: bytes,
+                what: str) -> Union[bytes, StatusError]:
+        """Return an answer's data, or the StatusError its error byte says (counted)."""
+        code = error & ERROR_CODE_MASK
+        if not code:
+            return data
+        self.counters.status_errors += 1
+        return StatusError(f'id {servo_id}: {what} refused: {ERROR_TEXT.get(code, code)}',
+                           servo_id, code, bool(error & ALERT_BIT))
+
+    # one-off transactions ------------------------------------------------------------------
     def transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
                  what: str) -> bytes:
         """
@@ -237,86 +412,40 @@ class Bus:
         With probe, silence is an answer too (a servo booting, or not there): a missing reply
         alone does not make the bus suspicious. A late one is still refused by its length.
         """
-        packet = encode_instruction(servo_id, instruction, params)
-        reply_size = STATUS_OVERHEAD + reply_params
+        request = Request(self.framer.encode(servo_id, instruction, params), (servo_id,),
+                          reply_params)
         with self.lock:
             if linger is None:
                 linger = self.dirty
-            sent_s, written_s = self._send(packet)
-            deadline = written_s + self.reply_timeout_s(reply_size, 1, len(packet))
-            buffer = bytearray()
-            pos = 0
-            want = reply_size + (len(packet) if self.echo else 0)
-            found: Optional[Tuple[int, bytes]] = None
-            corrupt = stale = echoed = False
-            max_length = 2 * (reply_params + 4) + 8
-            while True:
-                chunk = self._read(want - len(buffer), deadline)
-                buffer += chunk
-                final = time.monotonic() >= deadline
-                frames, pos = scan_frames(buffer, pos, max_length=max(max_length, len(packet)),
-                                          final=final)
-                for frame in frames:
-                    kind = self._classify(frame, packet, servo_id)
-                    if kind == 'echo':
-                        echoed = True
-                    elif kind == 'corrupt':
-                        corrupt = True
-                    elif kind == 'status':
-                        error, data = _status_of(frame)
-                        if len(data) == reply_params or (error & 0x7F and not data):
-                            if found is not None:
-                                stale = True   # an earlier one was a late reply: last wins
-                            found = (error, data)
-                        else:
-                            stale = True
-                    else:
-                        stale = True
-                if final or (found is not None and not linger):
-                    break
-                if linger:
-                    # Dirty bus: read on to the deadline, a later matching reply replaces this.
-                    want = len(buffer) + reply_size
-                else:
-                    # No more than the reply still lacks (the bytes from pos on are its start):
-                    # asking for more would wait for the deadline.
-                    want = len(buffer) + max(1, reply_size - (len(buffer) - pos))
-            if echoed:
-                self._echo_seen()
-            elif found is not None:
-                self._echo_missing()
-            if stale or corrupt or pos < len(buffer):
-                self.counters.stale += int(stale)
+            sent_s, written_s = self._send(request.packet)
+            reply_size = STATUS_OVERHEAD + reply_params
+            deadline = written_s + self.reply_timeout_s(reply_size, 1, len(request.packet))
+            want = reply_size + (len(request.packet) if self.echo else 0)
+            buffer = bytearray(self._read(want, deadline))
+            collected = self._collect(request, deadline, buffer, linger,
+                                      lambda found: servo_id in found.answers)
+            self._note_echo(collected.echoed, servo_id in collected.answers)
+            if collected.anomalies:
                 self.mark_dirty()
-            if found is None:
-                if not probe or stale or corrupt:
+            answer = collected.answers.get(servo_id)
+            if answer is None:
+                if not probe or collected.anomalies:
                     self.mark_dirty()
-                if corrupt:
+                if collected.corrupt:
                     self.counters.corrupt += 1
                     raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
                                        servo_id)
                 self.counters.timeouts += 1
-                hint = (' (only replies that did not answer it came back)' if stale else
-                        ' (check the id, the baud rate, Protocol 2.0, the servo power and the '
-                        'adapter latency timer)')
+                hint = (' (only replies that did not answer it came back)' if collected.discarded
+                        else ' (check the id, the baud rate, Protocol 2.0, the servo power and '
+                        'the adapter latency timer)')
                 raise CommTimeout(f'id {servo_id}: no status packet for {what} at '
                                   f'{self.baud_bps} bps{hint}', servo_id)
-            error, data = found
-            code = error & 0x7F
-            if code:
-                self.counters.status_errors += 1
-                text = ERROR_TEXT.get(code, f'error code {code}')
-                raise StatusError(f'id {servo_id}: {what} refused: {text}', servo_id, code,
-                                  bool(error & 0x80))
-            return data, sent_s
-
-    @staticmethod
-    def _classify(frame: Frame, packet: bytes, servo_id: int) -> str:
-        if not frame.crc_ok:
-            return 'corrupt' if frame.servo_id == servo_id else 'noise'
-        if frame.instruction != Instruction.STATUS:
-            return 'echo' if frame.raw == packet else 'noise'
-        return 'status' if frame.servo_id == servo_id else 'other'
+            _, error, data = answer
+            result = self._answer(servo_id, error, data, what)
+            if isinstance(result, StatusError):
+                raise result
+            return result, sent_s
 
     def ping(self, servo_id: int, probe: bool = False) -> int:
         """
@@ -331,29 +460,20 @@ class Bus:
 
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping."""
-        packet = encode_instruction(BROADCAST_ID, Instruction.PING)
+        request = Request(self.framer.encode(BROADCAST_ID, Instruction.PING),
+                          tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS)
         reply_size = STATUS_OVERHEAD + PING_REPLY_PARAMS
-        found: Dict[int, int] = {}
         with self.lock:
-            _, written_s = self._send(packet)
-            deadline = (written_s + self.reply_timeout_s(reply_size * (MAX_ID + 1), 0, len(packet))
+            _, written_s = self._send(request.packet)
+            # Every id may answer: the replies are read to the deadline.
+            deadline = (written_s + self.reply_timeout_s(reply_size * (MAX_ID + 1), 0,
+                                                         len(request.packet))
                         + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
-            buffer = bytearray()
-            pos = 0
-            while True:
-                buffer += self._read(reply_size, deadline, to_deadline=True)
-                final = time.monotonic() >= deadline
-                frames, pos = scan_frames(buffer, pos, max_length=32, final=final)
-                for frame in frames:
-                    if frame.crc_ok and frame.instruction == Instruction.STATUS:
-                        error, data = _status_of(frame)
-                        if len(data) == PING_REPLY_PARAMS:
-                            found[frame.servo_id] = data[0] | (data[1] << 8)
-                    elif frame.raw == packet:
-                        self._echo_seen()
-                if final:
-                    break
-        return found
+            collected = self._collect(request, deadline, bytearray(), True, lambda found: False)
+            self._note_echo(collected.echoed, bool(collected.answers))
+        return {servo_id: data[0] | (data[1] << 8)
+                for servo_id, (_, error, data) in collected.answers.items()
+                if len(data) == PING_REPLY_PARAMS}
 
     def read(self, servo_id: int, address: int, length: int, confirm: bool = True) -> bytes:
         """
@@ -422,8 +542,7 @@ class Bus:
 
     def clear_multi_turn(self, servo_id: int) -> None:
         """Send CLEAR: present position back within one turn (the servo must be still)."""
-        self.transact(servo_id, Instruction.CLEAR, b'\x01\x44\x58\x4c\x22', 0,
-                      'clear multi-turn')
+        self.transact(servo_id, Instruction.CLEAR, CLEAR_MULTI_TURN, 0, 'clear multi-turn')
 
     def factory_reset(self, servo_id: int, option: int) -> None:
         """Send FACTORY_RESET with option 0xFF, 0x01 or 0x02."""
@@ -431,12 +550,12 @@ class Bus:
 
     # per-cycle transactions ----------------------------------------------------------------
     def _sync_read_packet(self, address: int, length: int, ids: Tuple[int, ...],
-                          fast: bool = False) -> bytes:
+                          fast: bool) -> bytes:
         key = (address, length, ids, fast)
         packet = self._sync_read_packets.get(key)
         if packet is None:
             params = struct.pack('<HH', address, length) + bytes(ids)
-            packet = encode_instruction(
+            packet = self.framer.encode(
                 BROADCAST_ID, Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ,
                 params)
             if len(self._sync_read_packets) > 64:
@@ -453,76 +572,40 @@ class Bus:
         stops the others from being read (in a Fast Sync Read, those whose parts come before a
         corrupted one, or after a missing one).
         """
-        return self.end_sync_read(self.begin_sync_read(address, length, ids, fast))
+        return self.begin_sync_read(address, length, ids, fast).collect()
 
     def begin_sync_read(self, address: int, length: int, ids: Sequence[int],
                         fast: bool = False, linger: bool = False) -> SyncRead:
         """
-        Send a SYNC_READ (FAST_SYNC_READ when fast) and return at once; end_sync_read() collects.
+        Send a SYNC_READ (FAST_SYNC_READ when fast) and return at once, the bus held.
+
+        The SyncRead returned owns the bus until its collect() or abort(), in the same thread.
 
         With linger the replies are read on to the deadline and the last whole answer is taken:
         the caller found the last answer stale (a late one taken in its place, the next one
-        then still on its way), and this puts request and answer back in step.
-
-        The caller may do other work (publish the previous cycle) while the servos answer. The
-        bus lock is held from here to end_sync_read() or abort(), which must follow in the same
-        thread.
+        then still on its way), and this puts request and answer back in step. Meanwhile the
+        caller may do other work (publish the previous cycle) while the servos answer.
         """
         id_tuple = tuple(ids)
-        packet = self._sync_read_packet(address, length, id_tuple, fast)
+        request = Request(self._sync_read_packet(address, length, id_tuple, fast), id_tuple,
+                          length)
         expected = (fast_sync_size(length, len(id_tuple)) if fast
                     else (STATUS_OVERHEAD + length) * len(id_tuple))
         self.lock.acquire()
         try:
-            if self._pending is not None and not self._pending.done:
-                raise RuntimeError('a sync read is already in flight')
-            sent_s, written_s = self._send(packet)
+            sent_s, written_s = self._send(request.packet)
         except BaseException:
             self.lock.release()
             raise
-        deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(packet))
-        pending = SyncRead(address, length, id_tuple, packet, sent_s, deadline, fast=fast,
-                           linger=linger)
-        self._pending = pending
-        return pending
+        deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(request.packet))
+        return SyncRead(self, request, length, address, sent_s, deadline, fast, linger)
 
-    def abort(self, pending: Optional[SyncRead]) -> None:
-        """
-        Give up a sync read begun and not ended (idempotent), and wait its replies out.
-
-        Whatever arrives until the read's deadline is its answer: it is read and dropped here,
-        so no later transaction (the next activation's first read, a torque-off) can take it
-        for its own. Later stragglers still find the bus suspicious (dirty).
-        """
-        if pending is None or pending.done:
-            return
-        pending.done = True
-        self.mark_dirty()
-        try:
-            while time.monotonic() < pending.deadline_s:
-                dropped = self._read(STATUS_OVERHEAD * len(pending.ids) + 4096,
-                                     pending.deadline_s, to_deadline=True)
-                self.counters.flushed_bytes += len(dropped)
-        except PortError:
-            pass   # a lost port holds nothing to wait for; its next user finds it lost
-        finally:
-            self.lock.release()
-
-    def end_sync_read(self, pending: SyncRead) -> SyncResult:
-        """Collect the replies of a sync read begun by begin_sync_read()."""
-        if pending.done:
-            raise RuntimeError('end_sync_read() of a sync read already ended')
-        pending.done = True
-        try:
-            return self._collect(pending)
-        finally:
-            self.lock.release()
-
-    def _collect(self, pending: SyncRead) -> SyncResult:
+    def _collect_sync(self, pending: SyncRead) -> SyncResult:
+        """Collect a sync read's answers (SyncRead.collect, the bus lock held)."""
         ids = pending.ids
         length = pending.length
-        reply_size = STATUS_OVERHEAD + length
-        expected = fast_sync_size(length, len(ids)) if pending.fast else reply_size * len(ids)
+        expected = (fast_sync_size(length, len(ids)) if pending.fast
+                    else (STATUS_OVERHEAD + length) * len(ids))
         echo_size = len(pending.packet) if self.echo else 0
         echoes = self.counters.echoes
         buffer = self._read(echo_size + expected, pending.deadline_s)
@@ -532,24 +615,24 @@ class Bus:
         if pending.fast:
             result = self._collect_fast(pending, buffer)
         else:
-            results = None if pending.linger else self._parse_sync_fast(buffer, ids, length)
+            results = None if pending.linger else self._parse_clean(buffer, ids, length)
             if results is not None:
                 return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
             # An echo not where expected (something came first) is found among the frames.
-            result = self._collect_slow(pending, bytearray(buffer))
+            result = self._collect_sync_frames(pending, bytearray(buffer))
         if (echo_size and self.counters.echoes == echoes
                 and any(isinstance(data, bytes) for data in result.data.values())):
             self._echo_missing()
         return result
 
-    def _parse_sync_fast(self, buffer: bytes, ids: Tuple[int, ...],
-                         length: int) -> Optional[Dict[int, Union[bytes, CommError]]]:
+    def _parse_clean(self, buffer: bytes, ids: Tuple[int, ...],
+                     length: int) -> Optional[Dict[int, Union[bytes, CommError]]]:
         """
         Parse the usual case at once: every reply there, in order, unstuffed, error byte 0.
 
         Each reply must start with exactly the bytes a clean status of that id has (header, id,
-        length, 0x55, error 0) and pass its CRC; anything else returns None and the careful
-        parser takes the whole buffer.
+        length, 0x55, error 0) and pass its CRC; anything else returns None and the collector
+        takes the whole buffer.
         """
         reply_size = STATUS_OVERHEAD + length
         if len(buffer) != reply_size * len(ids):
@@ -573,6 +656,46 @@ class Bus:
             start += reply_size
         return results
 
+    def _collect_sync_frames(self, pending: SyncRead, buffer: bytearray) -> SyncResult:
+        """
+        Take an unusual reply block apart with the collector, reading on for missing answers.
+
+        Each id's last answer wins. An answer that came before the answer of an id asked earlier
+        cannot belong to this request unless that earlier one was late too: it is ambiguous and
+        refused. When anything unusual was seen the block is read to its deadline, so an answer
+        that follows a stale reply is not missed.
+        """
+        ids = pending.ids
+        request = pending.request
+        found = self._collect(request, pending.deadline_s, buffer, pending.linger,
+                              lambda got: not got.anomalies and len(got.answers) == len(ids))
+        if found.echoed:
+            self._echo_seen()   # a missing echo is judged by the caller, _collect_sync
+        if found.anomalies or len(found.answers) < len(ids):
+            self.mark_dirty()   # a missing reply may still come, late
+        results: Dict[int, Union[bytes, CommError]] = {}
+        alerts: Dict[int, bool] = {}
+        latest = 0   # frame number of the last accepted answer, in request order
+        for servo_id in ids:
+            answer = found.answers.get(servo_id)
+            if answer is None:
+                results[servo_id] = self._missing(
+                    servo_id, servo_id in found.corrupt,
+                    'corrupted status packet in the sync read',
+                    'no status packet in the sync read')
+                continue
+            number, error, data = answer
+            if number < latest:
+                self.counters.stale += 1
+                results[servo_id] = CommTimeout(
+                    f'id {servo_id}: its reply came before that of an id asked earlier '
+                    '(a late reply of an earlier request?)', servo_id)
+                continue
+            latest = number
+            alerts[servo_id] = bool(error & ALERT_BIT)
+            results[servo_id] = self._answer(servo_id, error, data, 'sync read')
+        return SyncResult(results, False, pending.sent_s, alerts)
+
     def _collect_fast(self, pending: SyncRead, buffer: bytes) -> SyncResult:
         """
         Take apart the one status packet of a Fast Sync Read.
@@ -586,7 +709,6 @@ class Bus:
         ids = pending.ids
         length = pending.length
         size = fast_sync_size(length, len(ids))
-        counters = self.counters
         if len(buffer) == size and not pending.linger:
             parts, whole = parse_fast_sync_status(buffer, 0, ids, length)
             if whole:
@@ -604,7 +726,7 @@ class Bus:
             if data.startswith(pending.packet):
                 self._echo_seen()   # learned: the adapter echoes (stripped from now on)
             else:
-                counters.stale += 1   # something came before the answer
+                self.counters.stale += 1   # something came before the answer
         self.mark_dirty()   # a missing part may still come, late
         truncated = start < 0 or len(data) - start < size
         return self._fast_result(pending, parts, False, not truncated)
@@ -621,112 +743,9 @@ class Bus:
                     'no part in the fast sync read')
                 continue
             error, data = part
-            alerts[servo_id] = bool(error & 0x80)
+            alerts[servo_id] = bool(error & ALERT_BIT)
             results[servo_id] = self._answer(servo_id, error, data, 'fast sync read')
         return SyncResult(results, clean, pending.sent_s, alerts)
-
-    def _missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
-                 silent_text: str) -> CommError:
-        """Count and return why a servo has no reply in a sync read: corrupt or silent."""
-        if corrupt:
-            self.counters.corrupt += 1
-            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
-        self.counters.timeouts += 1
-        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
-
-    def _answer(self, servo_id: int, error: int, data: bytes,
-                what: str) -> Union[bytes, CommError]:
-        """Return a sync-read reply's data, or the StatusError its error byte says (counted)."""
-        code = error & 0x7F
-        if not code:
-            return data
-        self.counters.status_errors += 1
-        return StatusError(f'id {servo_id}: {what} refused: {ERROR_TEXT.get(code, code)}',
-                           servo_id, code, bool(error & 0x80))
-
-    def _collect_slow(self, pending: SyncRead, buffer: bytearray) -> SyncResult:
-        """
-        Take an unusual reply block apart, reading on when replies are missing.
-
-        Each id's last well-formed reply of the right length wins (replies leave the bus in
-        order, so a late or duplicated one comes before the answer to this request). A reply
-        that comes before the reply of an id asked earlier cannot belong to this request
-        unless that earlier one was late too: it is ambiguous and refused. When anything
-        unusual was seen the block is read to its deadline, so an answer that follows a stale
-        reply is not missed.
-        """
-        ids = pending.ids
-        length = pending.length
-        order = {servo_id: index for index, servo_id in enumerate(ids)}
-        reply_size = STATUS_OVERHEAD + length
-        max_length = 2 * (length + 4) + 8
-        entries: Dict[int, Tuple[int, int, bytes]] = {}   # id -> (frame index, error, data)
-        corrupt: Dict[int, int] = {}
-        anomalies = 0
-        pos = 0
-        index = 0
-        counters = self.counters
-        while True:
-            final = time.monotonic() >= pending.deadline_s
-            frames, pos = scan_frames(buffer, pos, max_length=max(max_length, len(pending.packet)),
-                                      final=final)
-            for frame in frames:
-                index += 1
-                servo_id = frame.servo_id
-                if not frame.crc_ok:
-                    anomalies += 1
-                    if servo_id in order:
-                        corrupt[servo_id] = corrupt.get(servo_id, 0) + 1
-                    continue
-                if frame.instruction != Instruction.STATUS:
-                    if frame.raw == pending.packet:
-                        self._echo_seen()
-                    else:
-                        anomalies += 1
-                    continue
-                if servo_id not in order:
-                    anomalies += 1
-                    counters.stale += 1
-                    continue
-                error, data = _status_of(frame)
-                if len(data) != length and not (error & 0x7F and not data):
-                    anomalies += 1
-                    counters.stale += 1
-                    continue
-                if servo_id in entries:
-                    anomalies += 1
-                    counters.stale += 1
-                entries[servo_id] = (index, error, data)
-            if final or (not anomalies and len(entries) == len(ids) and not pending.linger):
-                break
-            missing = len(ids) - len(entries)
-            # What the missing replies still lack (the bytes from pos on start one of them).
-            buffer += self._read(max(missing * reply_size - (len(buffer) - pos), 1),
-                                 pending.deadline_s)
-        if anomalies or pos < len(buffer) or len(entries) < len(ids):
-            self.mark_dirty()   # a missing reply may still come, late
-        results: Dict[int, Union[bytes, CommError]] = {}
-        alerts: Dict[int, bool] = {}
-        latest = 0   # frame index of the last accepted reply, in request order
-        for servo_id in ids:
-            entry = entries.get(servo_id)
-            if entry is None:
-                results[servo_id] = self._missing(
-                    servo_id, bool(corrupt.get(servo_id)),
-                    'corrupted status packet in the sync read',
-                    'no status packet in the sync read')
-                continue
-            frame_index, error, data = entry
-            if frame_index < latest:
-                counters.stale += 1
-                results[servo_id] = CommTimeout(
-                    f'id {servo_id}: its reply came before that of an id asked earlier '
-                    '(a late reply of an earlier request?)', servo_id)
-                continue
-            latest = frame_index
-            alerts[servo_id] = bool(error & 0x80)
-            results[servo_id] = self._answer(servo_id, error, data, 'sync read')
-        return SyncResult(results, False, pending.sent_s, alerts)
 
     def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
         """Write length bytes at address on several servos with one SYNC_WRITE; return bytes."""
@@ -736,7 +755,7 @@ class Bus:
                 raise ValueError(f'sync write of {length} bytes: id {servo_id} has {len(value)}')
             params.append(servo_id)
             params += value
-        packet = encode_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
+        packet = self.framer.encode(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
         with self.lock:
             if self.echo:
                 # A sync write has no reply, but an echoing adapter sends it back: take it now
@@ -773,17 +792,6 @@ def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...], length
             best = (start, parts, whole)
         start = data.find(head, start + 1)
     return best
-
-
-def _status_of(frame: Frame) -> Tuple[int, bytes]:
-    """Return (error byte, parameters) of a status frame (parameters unstuffed)."""
-    raw = frame.raw
-    if len(raw) < STATUS_OVERHEAD:
-        return 0, b''
-    data = raw[9:-2]
-    if b'\xff\xff\xfd\xfd' in data:
-        data = unstuff(data)
-    return raw[8], data
 
 
 def _port_lost(exc: BaseException) -> PortError:

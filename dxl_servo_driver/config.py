@@ -1,5 +1,11 @@
 """
-The driver's configuration: parameter names, defaults, ranges, and validation.
+The driver's configuration: the one table of parameters, and their validation.
+
+PARAMS (top level) and JOINT_PARAMS (`<joint>.<key>`) say of each parameter its type, default,
+unit, range, description and when it is taken (at configure, at run time, only at a restart):
+validation, the ROS declarations (`ros2 param describe`), the runtime checks and the README's
+tables (tools/param_table.py) all read them. `<joint>.registers.<name>` is the open family of
+raw register values, judged against the servo's control table.
 
 validate() takes the flat parameter dictionary a ROS parameter file gives (`joints`,
 `<joint>.id`, `<joint>.registers.<name>`, ...) and returns a DriverConfig, or raises ConfigError
@@ -33,7 +39,7 @@ class ConfigError(ConfigurationError):
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One top-level parameter: type, default, unit, description and range."""
+    """One parameter: type, default, unit, description, range, and when it is taken."""
 
     name: str
     kind: type
@@ -43,6 +49,12 @@ class ParamSpec:
     minimum: Optional[float] = None
     maximum: Optional[float] = None
     choices: Tuple[Any, ...] = ()
+    runtime: bool = False      # changes while the node runs (else read at configure)
+    threshold: bool = False    # a diagnostics threshold, checked against its pair
+    restart: bool = False      # fixes which parameters exist: changed only by a restart
+    shown: str = ''            # the default as the README says it, when it is not a value
+    only_for: str = ''         # a joint key only a joint with this key true has (gripper)
+    noun: str = ''             # what an error calls a value of it ('unknown <noun> ...')
 
 
 BAUDS = tuple(sorted(xm430.BAUD_RATES.values()))
@@ -59,15 +71,17 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('loop_rate', float, 100.0,
               'Cycles per second: one packed read of every servo, publish, pending goals '
               'written. Above what the bus can carry, the node runs as fast as the bus allows.',
-              'Hz', 0.1, 10000.0),
-    ParamSpec('state_rate', float, 10.0, 'Rate of ~/servo_states.', 'Hz', 0.0, 1000.0),
-    ParamSpec('joints', list, [], 'Joint names, in the order of joint_states.'),
+              'Hz', 0.1, 10000.0, runtime=True),
+    ParamSpec('state_rate', float, 10.0, 'Rate of ~/servo_states.', 'Hz', 0.0, 1000.0,
+              runtime=True),
+    ParamSpec('joints', list, [], 'Joint names, in the order of joint_states.', restart=True,
+              shown='(required)'),
     ParamSpec('torque_on_start', bool, True, 'Torque on when the node activates.'),
     ParamSpec('torque_off_on_shutdown', bool, True,
               'Torque off when the node deactivates or shuts down.'),
     ParamSpec('command_timeout', float, 0.0,
               'Velocity, current and PWM goals fall back to zero when no command arrived for '
-              'this long (0 = off).', 's', 0.0, 3600.0),
+              'this long (0 = off).', 's', 0.0, 3600.0, runtime=True),
     ParamSpec('autostart', bool, True, 'Configure and activate at start (lifecycle).'),
     ParamSpec('latency_timer', float, 16.0,
               'Latency timer of the USB adapter (16 ms is the Linux FTDI default; 1 ms with our '
@@ -101,7 +115,7 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'Minimum time between two recovery reboots of the same servo.', 's', 0.1, 3600.0),
     ParamSpec('goal_tolerance', float, 0.05,
               'A trajectory whose joints end farther than this from its last point (0.5 s after '
-              'its end) is reported (log and /diagnostics).', 'rad', 0.0, 10.0),
+              'its end) is reported (log and /diagnostics).', 'rad', 0.0, 10.0, runtime=True),
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
               'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
@@ -109,17 +123,42 @@ PARAMS: Tuple[ParamSpec, ...] = (
               "The ROS executor: rclpy's EventsExecutor (lower command latency and CPU in the "
               'benchmark) or its SingleThreadedExecutor.', choices=('single', 'events')),
     ParamSpec('temperature_warn', float, 70.0, 'Diagnostics WARN above this temperature.', 'degC',
-              0.0, 100.0),
+              0.0, 100.0, runtime=True, threshold=True),
     ParamSpec('temperature_error', float, 78.0, 'Diagnostics ERROR above this temperature.',
-              'degC', 0.0, 100.0),
+              'degC', 0.0, 100.0, runtime=True, threshold=True),
     ParamSpec('voltage_low', float, 10.0, 'Diagnostics WARN below this input voltage.', 'V',
-              0.0, 30.0),
+              0.0, 30.0, runtime=True, threshold=True),
     ParamSpec('voltage_high', float, 14.8, 'Diagnostics WARN above this input voltage.', 'V',
-              0.0, 30.0),
+              0.0, 30.0, runtime=True, threshold=True),
 )
 PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in PARAMS}
-JOINT_KEYS = ('id', 'operating_mode', 'torque_constant', 'model', 'gripper', 'gripper_open',
-              'gripper_closed')
+RUNTIME_PARAMS: Tuple[str, ...] = tuple(spec.name for spec in PARAMS if spec.runtime)
+THRESHOLDS: Tuple[str, ...] = tuple(spec.name for spec in PARAMS if spec.threshold)
+
+# `<joint>.<key>`, one set per joint; all read at configure.
+JOINT_PARAMS: Tuple[ParamSpec, ...] = (
+    ParamSpec('id', int, None, "Dynamixel id of the joint's servo.", '', 0, MAX_ID,
+              shown='(required)'),
+    ParamSpec('operating_mode', str, 'position',
+              "Operating mode at start (the XM430 manual's modes 0, 1, 3, 4, 5, 16).",
+              choices=modes.NAMES, noun='operating mode'),
+    ParamSpec('model', str, '',
+              'The model the servo must be (a name such as XL430-W250, or its number); another '
+              'is refused at configure. Empty: any supported model.', shown='(any supported)'),
+    ParamSpec('torque_constant', float, None,
+              'joint_states.effort = current x this. Unset: the datasheet stall torque over '
+              'stall current of the model the servo answered with (the XM430 manual: 4.1 N*m '
+              'at 2.3 A = 1.783); `ros2 param get` shows the value in use once configured.',
+              'N*m/A', shown="the model's datasheet"),
+    ParamSpec('gripper', bool, False,
+              'A gripper (current_based_position only): ~/gripper commands, grasp detection.'),
+    ParamSpec('gripper_open', float, 0.0, 'The position of ratio 0 in ~/gripper commands.',
+              'rad', only_for='gripper'),
+    ParamSpec('gripper_closed', float, 0.0, 'The position of ratio 1 in ~/gripper commands.',
+              'rad', only_for='gripper'),
+)
+JOINT_PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in JOINT_PARAMS}
+JOINT_KEYS: Tuple[str, ...] = tuple(JOINT_PARAMS_BY_NAME)
 # Parameters every rclpy node has.
 ROS_PARAMS = frozenset({'use_sim_time', 'start_type_description_service'})
 
@@ -149,31 +188,31 @@ class JointConfig:
 
 @dataclass(frozen=True)
 class DriverConfig:
-    """A validated configuration."""
+    """A validated configuration: a field for each of PARAMS (defaults there), the joints."""
 
-    port: str = '/dev/ttyUSB0'
-    baud_rate: int = 57600
-    loop_rate: float = 100.0
-    state_rate: float = 10.0
-    torque_on_start: bool = True
-    torque_off_on_shutdown: bool = True
-    command_timeout: float = 0.0
-    autostart: bool = True
-    latency_timer: float = 16.0
-    ping_retries: int = 3
-    missing_servo: str = 'refuse'
-    read_retries: int = 1
-    read_mode: str = 'sync'
-    write_mode: str = 'indirect'
-    cycle_driver: str = 'thread'
-    executor: str = 'events'
-    hardware_error_recovery: bool = False
-    recovery_interval: float = 5.0
-    goal_tolerance: float = 0.05
-    temperature_warn: float = 70.0
-    temperature_error: float = 78.0
-    voltage_low: float = 10.0
-    voltage_high: float = 14.8
+    port: str
+    baud_rate: int
+    loop_rate: float
+    state_rate: float
+    torque_on_start: bool
+    torque_off_on_shutdown: bool
+    command_timeout: float
+    autostart: bool
+    latency_timer: float
+    ping_retries: int
+    missing_servo: str
+    read_retries: int
+    read_mode: str
+    write_mode: str
+    cycle_driver: str
+    executor: str
+    hardware_error_recovery: bool
+    recovery_interval: float
+    goal_tolerance: float
+    temperature_warn: float
+    temperature_error: float
+    voltage_low: float
+    voltage_high: float
     joints: Tuple[JointConfig, ...] = field(default_factory=tuple)
 
     def joint(self, name: str) -> JointConfig:
@@ -210,17 +249,21 @@ def _check_type(key: str, value: Any, expected: type) -> Any:
     raise AssertionError(expected)
 
 
-def check_spec(spec: ParamSpec, value: Any) -> Any:
-    """Return a top-level parameter's value checked (type, choices, range); ConfigError if not."""
-    value = _check_type(spec.name, value, spec.kind)
+def check_spec(spec: ParamSpec, value: Any, key: str = '') -> Any:
+    """Return a parameter's value checked (type, choices, range); ConfigError names key if not."""
+    key = key or spec.name
+    value = _check_type(key, value, spec.kind)
     if spec.choices and value not in spec.choices:
-        raise ConfigError(spec.name, f'{value!r} is not one of {list(spec.choices)}')
+        if spec.noun:
+            raise ConfigError(key, f'unknown {spec.noun} {value!r} (one of {list(spec.choices)})')
+        raise ConfigError(key, f'{value!r} is not one of {list(spec.choices)}')
+    unit = f' {spec.unit}' if spec.unit else ''
     if spec.minimum is not None and value < spec.minimum:
-        raise ConfigError(spec.name, f'{value} is below the minimum {spec.minimum} {spec.unit}'
-                          .rstrip())
+        raise ConfigError(key, f'{value} is below the minimum {spec.minimum:g}{unit} '
+                          f'(range {spec.minimum:g}..{spec.maximum:g})')
     if spec.maximum is not None and value > spec.maximum:
-        raise ConfigError(spec.name, f'{value} is above the maximum {spec.maximum} {spec.unit}'
-                          .rstrip())
+        raise ConfigError(key, f'{value} is above the maximum {spec.maximum:g}{unit} '
+                          f'(range {spec.minimum:g}..{spec.maximum:g})')
     return value
 
 
@@ -270,43 +313,41 @@ def _reject_unknown_keys(params: Mapping[str, Any], joint_names: set) -> None:
                           f'{list(JOINT_KEYS)} or registers.<name>)')
 
 
+def _joint_value(params: Mapping[str, Any], name: str, key: str) -> Any:
+    """Return `<name>.<key>` checked against its JOINT_PARAMS spec, or the spec's default."""
+    spec = JOINT_PARAMS_BY_NAME[key]
+    full = f'{name}.{key}'
+    if full not in params:
+        return spec.default
+    return check_spec(spec, params[full], full)
+
+
 def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
-    key = f'{name}.id'
-    if key not in params:
-        raise ConfigError(key, f'joint {name!r} has no id')
-    servo_id = _check_type(key, params[key], int)
-    if not 0 <= servo_id <= MAX_ID:
-        raise ConfigError(key, f'id {servo_id} is outside 0..{MAX_ID}')
+    if f'{name}.id' not in params:
+        raise ConfigError(f'{name}.id', f'joint {name!r} has no id')
+    servo_id = _joint_value(params, name, 'id')
     key = f'{name}.model'
     wanted: Optional[models.Model] = None
-    if key in params:
+    if params.get(key, '') != '':   # empty: any supported model
         wanted = _model(key, params[key])
     key = f'{name}.operating_mode'
-    mode = _check_type(key, params.get(key, 'position'), str)
-    if mode not in modes.BY_NAME:
-        raise ConfigError(key, f'unknown operating mode {mode!r} (one of '
-                          f'{list(modes.NAMES)})')
+    mode = _joint_value(params, name, 'operating_mode')
     if wanted is not None and mode not in wanted.modes:
         raise ConfigError(key, f'{wanted.name} has no {mode} mode (its modes: '
                           f'{", ".join(wanted.modes)})')
-    key = f'{name}.torque_constant'
-    torque_constant: Optional[float] = None
-    if key in params:
-        given = float(_check_type(key, params[key], float))
-        if given <= 0.0:
-            raise ConfigError(key, f'must be positive, got {given}')
-        torque_constant = given
-    key = f'{name}.gripper'
-    gripper = bool(_check_type(key, params.get(key, False), bool))
+    torque_constant: Optional[float] = _joint_value(params, name, 'torque_constant')
+    if torque_constant is not None and torque_constant <= 0.0:
+        raise ConfigError(f'{name}.torque_constant', f'must be positive, got {torque_constant}')
+    gripper = _joint_value(params, name, 'gripper')
     if gripper and mode != 'current_based_position':
-        raise ConfigError(key, f'a gripper holds with a limited current: its operating_mode must '
-                          f'be current_based_position, not {mode}')
+        raise ConfigError(f'{name}.gripper', 'a gripper holds with a limited current: its '
+                          f'operating_mode must be current_based_position, not {mode}')
     ends = []
-    for end in ('open', 'closed'):
-        key = f'{name}.gripper_{end}'
-        if key in params and not gripper:
-            raise ConfigError(key, f'only a gripper (`{name}.gripper: true`) has this')
-        ends.append(float(_check_type(key, params.get(key, 0.0), float)))
+    for key in ('gripper_open', 'gripper_closed'):
+        if f'{name}.{key}' in params and not gripper:
+            raise ConfigError(f'{name}.{key}', f'only a gripper (`{name}.gripper: true`) has '
+                              'this')
+        ends.append(_joint_value(params, name, key))
     prefix = f'{name}.registers.'
     registers = []
     for key in sorted(k for k in params if k.startswith(prefix)):
@@ -315,8 +356,8 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         registers.append((register, value))
     joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
                         gripper, ends[0], ends[1])
-    # Without a model the seed's table judges the file now (a register only other models
-    # have is judged at configure, against the model the servo answers with).
+    # Without a model the XM430 manual's table judges the file now (a register only other
+    # models have is judged at configure, against the model the servo answers with).
     problem = _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER),
                                lenient=wanted is None)
     if problem is not None:
@@ -370,7 +411,7 @@ def _check_registers(joint: JointConfig, table: models.Model,
 
 
 def describe_register(joint: JointConfig, register: str) -> models.Item:
-    """Return the item a joint's register names: the configured model's, the seed's, or any."""
+    """Return the item a joint's register names: its model's, the XM430 manual's, or any."""
     for table in (joint.model, models.model_for(xm430.MODEL_NUMBER), *models.ALL_MODELS):
         if table is not None and table.has(register):
             return table.item(register)

@@ -1,30 +1,34 @@
 """
-The manager: servos by joint name over one Bus, with batching and safety ordering.
+The manager: servos by joint name over one bus, the facade the node uses.
 
 It owns what the node must never get wrong: configuration applied and verified before anything
-moves, goal = present before torque on, one packed read and one sync write per register per cycle,
-refusals that write nothing, what a mode change resets re-applied, samples dated so a late reply
-is never published as current, servos that restart on their own given their configuration back
-step by step (never stalling the others), and every torque-on matched by a torque-off at the end.
-No ROS here: the node calls these methods and publishes.
+moves, goal = present before torque on, one packed read and one sync write per cycle, refusals
+that write nothing, what a mode change resets re-applied, samples dated so a late reply is never
+published as current, servos that restart on their own given their configuration back step by
+step (never stalling the others), and every torque-on matched by a torque-off at the end. No
+ROS here: the node calls these methods and publishes.
 
-This is the facade the node uses; the parts in driver/ do the work, each handed what it needs.
-Locks: `lock` (an RLock) serialises requests and the cycle; the goal queue has a small lock of
-its own that commands take instead, so a command never waits for the bus. Order when both are
-needed: `lock`, then the queue's. begin_read() holds `lock` until end_read() or abort_read().
+The parts in driver/ do the work; each is handed the shared Context (driver/context.py) and the
+parts it uses, built here in the order they depend on one another. Locks: the context's `lock`
+(an RLock) serialises requests and the cycle; the goal queue has a small lock of its own that
+commands take instead, so a command never waits for the bus. Order when both are needed: the
+context's lock, then the queue's. A read in flight holds the context's lock from cycle_begin()
+to cycle_end() or abort_read() (driver/cycle.ReadInFlight).
 """
 
 import threading
 import time
-from typing import Any, Callable, List, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver.context import Context, Logs, Stats
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goal, Goals
 from dxl_servo_driver.driver.link import Link
-from dxl_servo_driver.driver.recovery import PortWatch, Recovery
+from dxl_servo_driver.driver.port_watch import PortWatch
+from dxl_servo_driver.driver.recovery import Recovery
 from dxl_servo_driver.driver.services import Services
 from dxl_servo_driver.driver.servo import (
     BLOCK, IDX_CANARY, IDX_EFFORT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION,
@@ -35,13 +39,13 @@ from dxl_servo_driver.errors import CommError, Interrupted, PortError
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.tasks import Task, TaskRunner
-from dxl_servo_driver.transports import open_transport, PortFactory
+from dxl_servo_driver.transports import open_transport, PortFactory, Transport
 
 __all__ = [
     'BLOCK', 'IDX_CANARY', 'IDX_EFFORT', 'IDX_HW_ERROR', 'IDX_MOVING', 'IDX_MOVING_STATUS',
     'IDX_POSITION', 'IDX_PWM', 'IDX_TEMPERATURE', 'IDX_TICK', 'IDX_TORQUE', 'IDX_VELOCITY',
     'IDX_VOLTAGE', 'Interrupted', 'Log', 'Manager', 'ManagerError', 'open_transport',
-    'Result', 'Servo',
+    'PortFactory', 'Result', 'Servo', 'Stats',
 ]
 
 
@@ -52,54 +56,42 @@ class Manager:
                  error: Log = print, port_factory: PortFactory = open_transport,
                  clock: Callable[[], float] = time.monotonic,
                  should_stop: Callable[[], bool] = lambda: False) -> None:
-        self._config = config
-        self._info = info
-        self._warn = warn
         roster = Roster(config.joints)
-        self._roster = roster
+        stale = StaleGuard(warn, clock)
+        # Transactions outside the cycle are tried ping_retries times (lost replies happen);
+        # should_stop is asked between them, so a signal stops configure and activate promptly.
+        link = Link(max(1, config.ping_retries), should_stop, stale)
+        ctx = Context(config=config, roster=roster, link=link, tasks=TaskRunner(clock),
+                      port=PortState(), stale=stale, clock=clock,
+                      log=Logs(info, warn, error), lock=threading.RLock())
+        self._ctx = ctx
+        self.lock = ctx.lock
         self.servos = roster.by_name
         self.order = roster.order
-        # Serialises requests (services, topics, the cycle) over the manager's state.
-        self.lock = threading.RLock()
-        port = PortState()
-        self._port = port
-        self._stale = StaleGuard(warn, clock)
-        # Transactions outside the cycle are tried this many times (lost replies happen);
-        # should_stop is asked between them, so a signal stops configure and activate promptly.
-        self._link = Link(max(1, config.ping_retries), should_stop, self._stale)
-        # Late-bound: what a task's end means is recovery's, and recovery is built on the cycle,
-        # which needs the tasks.
-        self.tasks = TaskRunner(lambda task: self._recovery.task_done(task),
-                                lambda task, exc: self._recovery.task_failed(task, exc), clock)
-        self._goals = Goals(config, roster, self.tasks, port, clock, warn)
-        self._cycle = Cycle(config, self.lock, roster, self._link, self.tasks, self._goals,
-                            self._stale, lambda servo: self._recovery.restarted(servo), clock,
-                            warn)
-        self._setup = Setup(config, roster, self._link, clock, info, warn)
-        self._recovery = Recovery(config, roster, self._link, self._setup, self._goals,
-                                  self._cycle, self.tasks, port, clock, info, warn)
-        self._ports = PortWatch(config, port_factory, port, roster, self._link, self._goals,
-                                self._cycle, self.tasks, self._recovery, clock, info, error)
-        self._services = Services(self.lock, roster, self._link, self._setup, self._goals,
-                                  self._cycle, self._recovery, self.tasks, port, self._ports)
+        self.tasks = ctx.tasks
+        self._goals = Goals(ctx)
+        self._cycle = Cycle(ctx, self._goals)
+        self._setup = Setup(ctx)
+        self._recovery = Recovery(ctx, self._setup, self._goals, self._cycle)
+        self._ports = PortWatch(ctx, port_factory, self._recovery, self._goals, self._cycle)
+        self._services = Services(ctx, self._setup, self._goals, self._cycle, self._recovery,
+                                  self._ports)
 
     # what the node reads and sets ---------------------------------------------------------
     @property
     def config(self) -> DriverConfig:
         """Return the configuration."""
-        return self._config
+        return self._ctx.config
 
     @config.setter
     def config(self, config: DriverConfig) -> None:
-        # Runtime parameters (command_timeout) reach every part at once.
-        self._config = config
-        for part in (self._goals, self._cycle, self._setup, self._recovery, self._ports):
-            part.config = config
+        # Runtime parameters (command_timeout) reach every part at once: they read it here.
+        self._ctx.config = config
 
     @property
     def bus(self) -> Optional[Bus]:
         """Return the open bus; None while the port is closed."""
-        return self._link.bus
+        return self._ctx.link.bus
 
     @property
     def port(self) -> Optional[RawPort]:
@@ -107,36 +99,19 @@ class Manager:
         return self._ports.port
 
     @property
-    def sim_bus(self) -> Any:
-        """Return the SimBus behind `port: sim` (None for hardware)."""
-        return self._ports.sim_bus
-
-    @property
-    def _port_factory(self) -> PortFactory:
-        return self._ports.factory
-
-    @_port_factory.setter
-    def _port_factory(self, factory: PortFactory) -> None:
-        self._ports.factory = factory
-
-    @property
-    def should_stop(self) -> Callable[[], bool]:
-        """Return what is asked between transactions at configure and activate."""
-        return self._link.should_stop
-
-    @should_stop.setter
-    def should_stop(self, should_stop: Callable[[], bool]) -> None:
-        self._link.should_stop = should_stop
+    def transport(self) -> Optional[Transport]:
+        """Return the transport the port came from (None before the first configure)."""
+        return self._ports.transport
 
     @property
     def port_lost(self) -> bool:
         """Return True while the port is lost (the cycle stops reading, reconnection is tried)."""
-        return self._port.lost
+        return self._ctx.port.lost
 
     @property
     def port_error(self) -> str:
         """Return why the port was lost."""
-        return self._port.error
+        return self._ctx.port.error
 
     @property
     def reconnect_interval_s(self) -> float:
@@ -157,34 +132,13 @@ class Manager:
         self._cycle.health_period_s = period_s
 
     @property
-    def cycles(self) -> int:
-        """Return the number of state reads completed."""
-        return self._cycle.cycles
-
-    @property
-    def read_failures(self) -> int:
-        """Return the number of servo reads that failed in the cycle."""
-        return self._cycle.read_failures
-
-    @property
-    def stale_refused(self) -> int:
-        """Return the number of samples refused as older than their request."""
-        return self._stale.refused
-
-    @property
-    def retries(self) -> int:
-        """Return the number of single-servo retries within a cycle."""
-        return self._cycle.retries
-
-    @property
-    def retry_successes(self) -> int:
-        """Return the number of those retries that got an answer."""
-        return self._cycle.retry_successes
-
-    @property
-    def recoveries(self) -> int:
-        """Return the number of hardware-error recoveries started."""
-        return self._recovery.recoveries
+    def stats(self) -> Stats:
+        """Return what the cycle and recovery counted so far."""
+        cycle = self._cycle
+        return Stats(cycles=cycle.cycles, read_failures=cycle.read_failures,
+                     retries=cycle.retries, retry_successes=cycle.retry_successes,
+                     stale_refused=self._ctx.stale.refused,
+                     recoveries=self._recovery.recoveries)
 
     # configure / activate / stop ----------------------------------------------------------
     def configure(self) -> None:
@@ -198,15 +152,15 @@ class Manager:
             except (PortError, CommError) as exc:
                 raise ManagerError(f'configuration failed: {exc}') from None
             budget = self.bus_budget()
-            self._info(
+            self._ctx.log.info(
                 f'bus limit for {len(self.active_servos())} servos at {self.config.baud_rate} bps '
-                f'(return delay {self._link.io().return_delay_s * 1e6:.0f} us, latency timer '
+                f'(return delay {self._ctx.link.io().return_delay_s * 1e6:.0f} us, latency timer '
                 f'{self.config.latency_timer:g} ms): {budget.rate_limit_hz:.0f} Hz '
                 f'({budget.bytes_per_cycle} bytes per cycle)')
             if budget.rate_limit_hz < self.config.loop_rate:
-                self._warn(f'loop_rate {self.config.loop_rate:g} Hz is above what the bus can '
-                           f'carry ({budget.rate_limit_hz:.0f} Hz): running as fast as the bus '
-                           'allows')
+                self._ctx.log.warn(
+                    f'loop_rate {self.config.loop_rate:g} Hz is above what the bus can carry '
+                    f'({budget.rate_limit_hz:.0f} Hz): running as fast as the bus allows')
 
     def _forget_clocks(self) -> None:
         # Nobody watched the servos since the last activation (or ever): any of them may have
@@ -216,7 +170,7 @@ class Manager:
 
     def bus_budget(self) -> state_block.BusBudget:
         """Return what one cycle costs on this bus."""
-        bus = self._link.bus
+        bus = self._ctx.link.bus
         rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / RETURN_DELAY_UNIT_S))
         return state_block.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
                                       rdt_raw, self.config.latency_timer / 1000.0,
@@ -230,13 +184,13 @@ class Manager:
     @property
     def goal_slots_in_use(self) -> str:
         """Return how many servos take their goals through a goal slot, as 'k of n'."""
-        active = self._roster.active()
+        active = self._ctx.roster.active()
         slotted = sum(servo.goal_slot is not None for servo in active)
         return f'{slotted} of {len(active)}'
 
     def active_servos(self) -> List[Servo]:
         """Return the servos that answered at configure."""
-        return self._roster.active()
+        return self._ctx.roster.active()
 
     def activate(self) -> None:
         """Goal = present for every servo, then torque on (if torque_on_start)."""
@@ -264,11 +218,11 @@ class Manager:
     def torque_off_all(self) -> List[Tuple[str, str]]:
         """Torque off every servo that may have torque on; return (joint, why) of the failures."""
         with self.lock:
-            if self._link.bus is None:
+            if self._ctx.link.bus is None:
                 return [(s.name, 'the port is closed') for s in self.order if s.torque_maybe_on]
-            lost = (self._port.error or 'no reason given') if self._port.lost else ''
+            lost = (self._ctx.port.error or 'no reason given') if self._ctx.port.lost else ''
             failures = []
-            with self._link.uninterruptible():   # a signal must not cut it
+            with self._ctx.link.uninterruptible():   # a signal must not cut it
                 for servo in self.order:
                     if not (servo.online or servo.torque_maybe_on):
                         continue
@@ -278,7 +232,7 @@ class Manager:
                             failures.append((servo.name, f'the port is lost ({lost})'))
                         continue
                     try:
-                        self._link.write(servo, 'torque_enable', 0)
+                        self._ctx.link.write(servo, 'torque_enable', 0)
                     except PortError as exc:
                         lost = str(exc)
                         failures.append((servo.name, f'the port is lost ({lost})'))
@@ -289,67 +243,67 @@ class Manager:
     def close(self) -> None:
         """Close the port."""
         with self.lock:
-            self._cycle.drop_read()
-            if self._link.bus is not None:
-                self._link.bus.close()
-            self._link.bus = None
+            self._cycle.abort_read()   # only this thread's can be in flight: it holds lock
+            if self._ctx.link.bus is not None:
+                self._ctx.link.bus.close()
+            self._ctx.link.bus = None
 
     # the cycle ----------------------------------------------------------------------------
-    def read_states(self, full: Optional[bool] = None,
-                    retry_until: Optional[float] = None) -> float:
-        """Read every servo's state with one sync read; return its time (see Cycle)."""
-        return self._cycle.read_states(full, retry_until)
+    def cycle_begin(self, full: Optional[bool] = None) -> bool:
+        """
+        Put the cycle's state read on the wire unless the port is lost; False when none is.
 
-    def begin_read(self, full: Optional[bool] = None) -> bool:
-        """Put the sync read on the wire, holding the lock until end_read or abort_read."""
-        return self._cycle.begin_read(full)
-
-    def end_read(self, retry_until: Optional[float] = None) -> float:
-        """Collect the sync read begun by begin_read(); return its monotonic time."""
-        return self._cycle.end_read(retry_until)
-
-    def abort_read(self) -> None:
-        """Give up the sync read in flight, if any, and release the locks (idempotent)."""
-        self._cycle.abort_read()
-
-    def cycle_begin(self) -> bool:
-        """begin_read() unless the port is lost; False when no read is in flight."""
+        full: read the whole state block (health too); None: when it is due. The read holds
+        the lock until cycle_end() or abort_read(), in the same thread.
+        """
         if self.port_lost:
             with self.lock:
                 if not self._ports.reconnect():
                     return False
         try:
-            return self.begin_read()
+            return self._cycle.begin_read(full)
         except PortError as exc:
             with self.lock:
                 self._ports.lose(exc)
             return False
 
     def cycle_end(self, retry_until: Optional[float] = None) -> bool:
-        """end_read() of a cycle_begin(); False when the port was lost meanwhile."""
+        """
+        Collect the read of cycle_begin(); False when the port was lost meanwhile.
+
+        A servo whose reply was lost or corrupted is read again on its own while the clock is
+        before retry_until (the cycle's budget); a servo found restarted on its own is handed
+        to recovery.
+        """
         try:
-            self.end_read(retry_until)
+            self._cycle.end_read(retry_until)
         except PortError as exc:
             with self.lock:
                 self._ports.lose(exc)
             return False
+        with self.lock:
+            restarted, self._cycle.restarted = self._cycle.restarted, []
+            for servo in restarted:
+                self._recovery.restarted(servo)
         return True
 
-    def cycle_read(self, retry_until: Optional[float] = None) -> bool:
-        """Read states unless the port is lost; False when nothing was read this cycle."""
-        return self.cycle_begin() and self.cycle_end(retry_until)
+    def abort_read(self) -> None:
+        """Give up the sync read in flight, if any, and release the locks (idempotent)."""
+        self._cycle.abort_read()
 
     def cycle_write(self, tasks_until: Optional[float] = None) -> None:
         """Command timeouts, pending goals, recovery steps; port loss handled."""
         with self.lock:
-            if self.port_lost or self._link.bus is None:
+            if self.port_lost or self._ctx.link.bus is None:
                 return
             try:
                 self.check_command_timeout()
                 self.write_pending()
                 self.recover_hardware_errors()
                 if tasks_until is not None:
-                    self.tasks.run(tasks_until)
+                    _, ended = self.tasks.run(tasks_until)
+                    for task, error in ended:
+                        self._recovery.ended(task, error)
             except PortError as exc:
                 self._ports.lose(exc)
 

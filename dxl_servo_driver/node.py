@@ -18,7 +18,7 @@ from dxl_servo_driver import trajectory as traj
 from dxl_servo_driver.commands import JointStateCommandError, split_joint_state
 from dxl_servo_driver.errors import DriverError, Interrupted
 from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
-from dxl_servo_driver.manager import Manager, ManagerError
+from dxl_servo_driver.manager import Manager, ManagerError, open_transport, PortFactory
 from dxl_servo_driver.models import xm430
 from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.cycle import CycleRunner
@@ -48,9 +48,19 @@ class StartupFailure(DriverError):
 class DriverNode(LifecycleNode):
     """One bus of Dynamixel servos as a lifecycle node."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, port_factory: PortFactory = open_transport, **kwargs: Any) -> None:
+        """
+        Make the node; port_factory opens its port at every configure (tests: their own).
+
+        kwargs go to rclpy's LifecycleNode (context, namespace, parameter_overrides, ...).
+        """
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True,
                          **kwargs)
+        self._port_factory = port_factory
+        # Values declared from what the servos answered (see _read_config), and whether the
+        # node is declaring its own parameters (its set callback then takes them as they are).
+        self._from_servos: Dict[str, Any] = {}
+        self._declaring = False
         try:
             self.config = self._read_config()
         except cfg.ConfigError as exc:
@@ -118,25 +128,32 @@ class DriverNode(LifecycleNode):
     # parameters -----------------------------------------------------------------------------
     def _read_config(self) -> cfg.DriverConfig:
         params = {name: p.value for name, p in self.get_parameters_by_prefix('').items()}
+        # A value the node declared from the servo (the torque constant in use) is not the
+        # file's: unless someone set it since, the joint still leaves it to the servo.
+        for name, value in self._from_servos.items():
+            if params.get(name) == value:
+                del params[name]
         return cfg.validate(params)
 
     def _new_manager(self, config: cfg.DriverConfig) -> Manager:
         log = self.get_logger()
         return Manager(config, info=log.info, warn=log.warning, error=log.error,
-                       should_stop=self.stop_requested.is_set)
+                       port_factory=self._port_factory, should_stop=self.stop_requested.is_set)
 
     def _take_rates(self, config: cfg.DriverConfig) -> None:
         self._runner.period_s = 1.0 / config.loop_rate
         self._state_period_s = (1.0 / config.state_rate) if config.state_rate else 0.0
         self._set_health_period()
         self._thresholds: Dict[str, float] = {
-            name: getattr(config, name) for name in parameters.THRESHOLDS}
+            name: getattr(config, name) for name in cfg.THRESHOLDS}
 
     def _set_health_period(self) -> None:
         # servo_states and the 1 Hz diagnostics need the health part of the state block.
         self.manager.health_period_s = min(1.0, self._state_period_s or 1.0)
 
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
+        if self._declaring:
+            return SetParametersResult(successful=True)
         reason, changes = parameters.check_changes(params, self._lifecycle_state(),
                                                    self._thresholds)
         if reason is not None:
@@ -187,10 +204,8 @@ class DriverNode(LifecycleNode):
             self.get_logger().error(f'invalid configuration: {exc}')
             return False
         if config != self.config:
-            factory = self.manager._port_factory   # a test's port stays a test's port
             self.config = config
             self.manager = self._new_manager(config)
-            self.manager._port_factory = factory
             self._take_rates(config)
             self._grasps = {joint.name: GraspDetector() for joint in config.joints
                             if joint.gripper}
@@ -211,8 +226,17 @@ class DriverNode(LifecycleNode):
             self.get_logger().warning('configure interrupted: stop requested')
             self.manager.close()
             return TransitionCallbackReturn.FAILURE
-        # The servos said which model they are: their conversions are known now.
+        # The servos said which model they are: their conversions are known now, and the
+        # values the configuration left to them are shown (ros2 param get).
         self._joints = JointTable(self.manager.order)
+        self._from_servos = {
+            f'{servo.name}.torque_constant': servo.units.torque_constant_nm_per_a
+            for servo in self.manager.order if servo.joint.torque_constant_nm_per_a is None}
+        self._declaring = True
+        try:
+            parameters.show_from_servos(self, self._from_servos)
+        finally:
+            self._declaring = False
         problem = self._joints.check_wire()
         if problem:
             self.get_logger().warning(f'{problem}: joint_states go out as message objects '

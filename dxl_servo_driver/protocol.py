@@ -18,11 +18,17 @@ from typing import cast, Protocol
 HEADER = b'\xff\xff\xfd\x00'
 BROADCAST_ID = 0xFE
 MAX_ID = 252
+# A status packet's error byte: bit 7 the alert (a hardware error is latched), bits 0..6 the
+# ErrorCode of this instruction.
 ALERT_BIT = 0x80
+ERROR_CODE_MASK = 0x7F
+# CLEAR's parameters for clearing the multi-turn count (the e-manual's CLEAR instruction).
+CLEAR_MULTI_TURN = b'\x01\x44\x58\x4c\x22'
 # Sizes on the wire (8N1 serial: a start bit, 8 data bits, a stop bit per byte).
 BITS_PER_BYTE = 10
 STATUS_OVERHEAD = 11        # header 4, id, length 2, instruction, error, crc 2
 INSTRUCTION_OVERHEAD = 10   # header 4, id, length 2, instruction, crc 2
+READ_PACKET_SIZE = INSTRUCTION_OVERHEAD + 4   # READ: address 2, length 2
 # Fast Sync Read: one status packet for every servo asked (see encode_fast_sync_status).
 FAST_HEAD_SIZE = 8          # header 4, id FE, length 2, instruction 0x55
 FAST_PART_OVERHEAD = 4      # error, id, crc 2 around each servo's data
@@ -210,6 +216,21 @@ class Frame:
         return _packet_from_body(self.servo_id, unstuff(self.raw[7:-2]) if self.crc_ok
                                  else self.raw[7:-2])
 
+    @property
+    def is_status(self) -> bool:
+        """Return True for a status packet (a servo's answer)."""
+        return self.instruction == Instruction.STATUS
+
+    def status(self) -> tuple[int, bytes]:
+        """Return a status frame's (error byte, parameters), the parameters unstuffed."""
+        raw = self.raw
+        if len(raw) < STATUS_OVERHEAD:
+            return 0, b''
+        data = raw[9:-2]
+        if _STUFFED_PATTERN in data:
+            data = unstuff(data)
+        return raw[8], data
+
 
 def _packet_from_body(servo_id: int, body: bytes) -> Packet:
     instruction = body[0]
@@ -392,3 +413,43 @@ class StreamParser:
         frames, rest = scan_frames(buffer, resync=False)
         del buffer[:rest]
         return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]
+
+
+class Framer(Protocol):
+    """
+    What the bus needs of a protocol's framing: the seam a Protocol 1.0 framer plugs into.
+
+    A framer encodes instruction packets and finds whole frames in received bytes; each frame
+    says its id, whether its checksum held, whether it is a status packet and, if so, its error
+    byte and parameters (Frame.status). Which instructions a protocol has, and the Fast Sync
+    Read (2.0 only), stay with the callers that use them.
+    """
+
+    status_overhead: int        # bytes of a status packet around its parameters
+    instruction_overhead: int   # bytes of an instruction packet around its parameters
+
+    def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
+        """Return a whole instruction packet as it goes on the wire."""
+
+    def scan(self, buffer: bytes | bytearray, pos: int, max_length: int,
+             final: bool) -> tuple[list[Frame], int]:
+        """Return the whole frames in buffer from pos on, and where unconsumed bytes begin."""
+
+
+class Protocol2Framer:
+    """Protocol 2.0 framing (this module's functions), as the bus's Framer."""
+
+    status_overhead = STATUS_OVERHEAD
+    instruction_overhead = INSTRUCTION_OVERHEAD
+
+    def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
+        """Return a whole instruction packet as it goes on the wire."""
+        return encode_instruction(servo_id, instruction, params)
+
+    def scan(self, buffer: bytes | bytearray, pos: int, max_length: int,
+             final: bool) -> tuple[list[Frame], int]:
+        """Return the whole frames in buffer from pos on (scan_frames with resync)."""
+        return scan_frames(buffer, pos, max_length=max_length, final=final)
+
+
+PROTOCOL_2 = Protocol2Framer()

@@ -79,7 +79,7 @@ def check_register_set(values: Mapping[str, int], name: str, value: int, mode: s
 
     values holds the current values of (at least) related_registers(name); mode is the joint's
     operating mode. The one rule book for parameter files and write_register. A bound the
-    model does not have (no acceleration_limit outside the seed's models) is not checked.
+    model does not have (no acceleration_limit outside the XM430 manual's models) is not checked.
     """
     bound = _BOUNDED_BY.get(name)
     if bound is not None and bound in values and abs(value) > values[bound]:

@@ -137,7 +137,7 @@ def describe(servo: FoundServo) -> str:
         elif status == 0:
             parts.append('hardware errors: none')
         else:
-            # Bits the seed does not name are shown as the raw value only.
+            # Bits the manual does not name are shown as the raw value only.
             parts.append(f'hardware errors: {", ".join(errors) or "unnamed bits"} '
                          f'(0x{status:02x})')
     return ', '.join(parts)

@@ -13,7 +13,7 @@ while it steps tasks, so a task spinning on the clock would keep every request f
 
 import threading
 import time
-from typing import Any, Callable, Dict, Generator, Iterable, List, Optional
+from typing import Any, Callable, Dict, Generator, Iterable, List, Optional, Tuple
 
 # A step yields None (one transaction done, or none) or a float, the time it wants to wake at.
 # Typed Any: mypy accepts a bare `yield` only where the yield type is None or Any.
@@ -81,16 +81,12 @@ class TaskRunner:
     """
     The tasks in progress, at most one per joint, stepped round-robin within a time budget.
 
-    on_error(task, exc) decides what a failed task means (retry later, give up); exceptions it
-    raises itself propagate to the cycle (a lost port).
+    It only steps them: run() hands back the tasks that ended (and the exception that ended a
+    failed one), and their owner (driver/recovery.py) decides what that means.
     """
 
-    def __init__(self, on_done: Callable[[Task], None],
-                 on_error: Callable[[Task, Exception], None],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._tasks: Dict[str, Task] = {}
-        self._on_done = on_done
-        self._on_error = on_error
         self._clock = clock
         self._turn = 0
 
@@ -122,30 +118,31 @@ class TaskRunner:
             if task is not None:
                 task.cancel(reason)
 
-    def run(self, until_s: float) -> int:
+    def run(self, until_s: float) -> Tuple[int, List[Tuple[Task, Optional[Exception]]]]:
         """
-        Step the tasks round-robin until until_s; return the number of steps run.
+        Step the tasks round-robin until until_s; return (steps run, the tasks that ended).
 
         At least one step runs when a task is ready, so recovery always progresses, even in a
-        loop with no time to spare.
+        loop with no time to spare. An ended task leaves the runner; a failed one comes with
+        the exception that ended it.
         """
         steps = 0
+        ended: List[Tuple[Task, Optional[Exception]]] = []
         while True:
             ready = [t for t in self._tasks.values() if t.not_before_s <= self._clock()]
             if not ready:
-                return steps
+                return steps, ended
             task = ready[self._turn % len(ready)]
             self._turn += 1
             try:
-                ended = task.step()
+                finished = task.step()
             except Exception as exc:  # noqa: B902 - the owner decides what a failure means
                 self._tasks.pop(task.joint, None)
-                self._on_error(task, exc)
-                ended = False
+                ended.append((task, exc))
             else:
-                if ended:
+                if finished:
                     self._tasks.pop(task.joint, None)
-                    self._on_done(task)
+                    ended.append((task, None))
             steps += 1
             if self._clock() >= until_s:
-                return steps
+                return steps, ended

@@ -11,15 +11,14 @@ after itself when the node cannot start. Client alone drives a driver in another
 import itertools
 import threading
 import time
-from typing import (
-    Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, Tuple, TypeVar)
+from typing import Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, TypeVar
 
 from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.node import DriverNode, NODE_NAME, StartupFailure
 from dxl_servo_driver.sim.port import SimPortHandler
-from dxl_servo_driver.transports import open_transport
+from dxl_servo_driver.transports import open_transport, PortFactory, SimTransport, Transport
 from dxl_servo_driver_msgs.msg import JointCommand, ServoStateArray
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)
@@ -229,19 +228,29 @@ class NodeHarness:
     """
     The driver node on `port: sim` and a Client, in one private context.
 
-    The node runs in a namespace of its own (SPEC: more buses = more nodes, in namespaces), so
-    its topics and services cannot mix with those of another test's node. /diagnostics is
-    absolute: only one harness should run at a time.
+    The node runs in a namespace of its own (more buses = more nodes, in namespaces), so its
+    topics and services cannot mix with those of another test's node. /diagnostics is absolute:
+    only one harness should run at a time. The node's port comes from port_factory (default:
+    what `port: sim` opens); the simulated servos of the last configure are `sim`.
     """
 
-    def __init__(self, params: Mapping[str, Any], start: bool = True) -> None:
+    def __init__(self, params: Mapping[str, Any], start: bool = True,
+                 port_factory: PortFactory = open_transport) -> None:
         self.namespace = f'/dxl_test_{next(_COUNTER)}'
         self.context = new_context()
         self.node: Optional[DriverNode] = None
         self.client: Optional[Client] = None
         self._closed = False
+        self._simulator: Any = None
+
+        def factory(config: Any) -> Transport:
+            transport = port_factory(config)
+            assert isinstance(transport, SimTransport), 'the harness drives simulated servos'
+            self._simulator = transport.simulator
+            return transport
         try:
-            self.node = DriverNode(context=self.context, namespace=self.namespace,
+            self.node = DriverNode(port_factory=factory, context=self.context,
+                                   namespace=self.namespace,
                                    parameter_overrides=overrides(params))
             if start:
                 self.node.start()
@@ -260,7 +269,7 @@ class NodeHarness:
     def sim(self) -> Any:
         """Return the SimBus behind `port: sim`."""
         assert self.node is not None
-        return self.node.manager.sim_bus
+        return self._simulator
 
     def reg(self, servo_id: int, name: str) -> int:
         """Return one register of a simulated servo, as the simulator holds it now."""
@@ -325,27 +334,21 @@ def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
     """
     Start a `port: sim` node whose port goes through a FaultyPort (or wrap(port)).
 
-    The simulated servos are made once; every configure opens a new port on them (after a
-    cleanup closed the last one), as a node reopens its device.
+    The simulated servos are made once (prepare(sim) may change them first); every configure
+    opens a new port on them (after a cleanup closed the last one), as a node reopens its
+    device.
     """
-    h = NodeHarness(params, start=False)
-    try:
-        assert h.node is not None
-        made: Dict[str, Any] = {}
+    made: Dict[str, Any] = {}
 
-        def factory(config: Any) -> Tuple[Any, Any]:
-            if 'sim' not in made:
-                raw, made['sim'] = open_transport(config)
-                if prepare is not None:
-                    prepare(made['sim'])
-            else:
-                raw = SimPortHandler(made['sim'], 'sim', config.baud_rate)
-            port = FaultyPort(raw, faults, seed)
-            return (wrap(port) if wrap is not None else port), made['sim']
+    def factory(config: Any) -> Transport:
+        if 'sim' not in made:
+            made['sim'] = open_transport(config).simulator   # type: ignore[attr-defined]
+            if prepare is not None:
+                prepare(made['sim'])
+        sim = made['sim']
 
-        h.node.manager._port_factory = factory
-        h.node.start()
-    except BaseException:
-        h.close()
-        raise
-    return h
+        def open_port() -> Any:
+            port = FaultyPort(SimPortHandler(sim, 'sim', config.baud_rate), faults, seed)
+            return wrap(port) if wrap is not None else port
+        return SimTransport(sim, open_port)
+    return NodeHarness(params, port_factory=factory)

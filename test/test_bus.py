@@ -90,14 +90,14 @@ def test_begin_and_end_hold_the_bus_in_between(rig: Tuple[SimBus, Bus]) -> None:
     sim, bus = rig
     pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
     assert bus.lock._is_owned()   # noqa: SLF001 - RLock: held by this thread until the end
-    result = bus.end_sync_read(pending)
+    result = pending.collect()
     assert not bus.lock._is_owned()
     assert len(result.data) == 3
     with pytest.raises(RuntimeError):
-        bus.end_sync_read(pending)
+        pending.collect()
     # An abandoned read releases the bus once, however often it is abandoned.
     pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.motion_size, IDS)
-    bus.abort(pending)
-    bus.abort(pending)
+    pending.abort()
+    pending.abort()
     assert not bus.lock._is_owned()
     assert bus.dirty   # its replies are in flight: the next requests are careful

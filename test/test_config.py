@@ -1,8 +1,11 @@
-"""Configuration validation: every invalid case of SPEC section 2 names its key."""
+"""Configuration validation: every invalid case names its key; the parameter table is one."""
 
+import dataclasses
 from typing import Any, Dict
 
-from dxl_servo_driver.config import ConfigError, PARAMS, validate
+from dxl_servo_driver.config import (
+    ConfigError, DriverConfig, JOINT_PARAMS, JOINT_PARAMS_BY_NAME, PARAMS, RUNTIME_PARAMS,
+    THRESHOLDS, validate)
 import pytest
 
 
@@ -159,3 +162,21 @@ def test_shipped_parameter_files_are_valid(name: str) -> None:
     assert len(config.joints) >= 3
     modes = {joint.operating_mode for joint in config.joints}
     assert len(modes) == len(config.joints), 'the shipped files show one mode per joint'
+
+
+def test_the_configuration_has_a_field_for_each_parameter_of_the_table() -> None:
+    fields = {field.name for field in dataclasses.fields(DriverConfig)}
+    assert fields == {spec.name for spec in PARAMS}
+    # What is taken when comes from the table too.
+    assert set(RUNTIME_PARAMS) >= set(THRESHOLDS) and 'loop_rate' in RUNTIME_PARAMS
+    assert [spec.name for spec in PARAMS if spec.restart] == ['joints']
+
+
+def test_joint_parameters_are_checked_by_their_specs() -> None:
+    for spec in JOINT_PARAMS:
+        assert len(spec.description) > 20, spec.name
+    assert validate(base()).joint('arm').operating_mode == JOINT_PARAMS_BY_NAME[
+        'operating_mode'].default
+    params = base()
+    params['arm.model'] = ''   # empty: any model, as the node declares it when unset
+    assert validate(params).joint('arm').model is None

@@ -125,14 +125,14 @@ def test_the_node_behind_an_echoing_adapter(echo: str) -> None:
         bus = h.node.manager.bus
         assert bus is not None and bus.echo
         before = clean(bus.counters)
-        cycles = h.node.manager.cycles
+        cycles = h.node.manager.stats.cycles
         for step in range(20):
             h.publish('position', ['j1', 'j2'], [0.1 * (step % 3), -0.1])
             assert h.call('read_register', name='j3', register_name='present_position').success
             time.sleep(0.02)
         assert h.call('set_position', name=['j3'], value=[0.2]).success
         assert clean(bus.counters) == before, bus.counters
-        assert h.node.manager.cycles > cycles and h.node.manager.read_failures == 0
+        assert h.node.manager.stats.cycles > cycles and h.node.manager.stats.read_failures == 0
         # A reboot: the pings of the booting servo wait for their deadlines (it is silent),
         # and nothing else does; its restore does not linger behind them.
         timeouts = bus.counters.timeouts

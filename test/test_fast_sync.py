@@ -19,7 +19,7 @@ from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest
-from test_manager import BAUD as RIG_BAUD, params, Rig, TapPort
+from test_manager import BAUD as RIG_BAUD, cycle_read, params, Rig, TapPort
 
 BAUD = 1_000_000
 BLOCK = state_block.state_block(model_for(1030), 'present_current')
@@ -232,7 +232,7 @@ def fast_reads(rig: Rig) -> int:
 def cycles(manager: Manager, count: int) -> List[Dict[str, bool]]:
     fresh = []
     for _ in range(count):
-        manager.cycle_read(retry_until=time.monotonic() + 0.01)
+        cycle_read(manager, retry_until=time.monotonic() + 0.01)
         manager.cycle_write(tasks_until=time.monotonic())
         fresh.append({servo.name: servo.fresh for servo in manager.order})
         time.sleep(0.002)
@@ -286,9 +286,9 @@ def test_auto_gives_fast_up_when_it_brings_nothing_back_but_servos_answer(
         assert any('sync reads from now on' in line for line in rig.logs)
         # The retries served every joint meanwhile; sync reads do now, without retries.
         assert all(all(cycle.values()) for cycle in fresh[1:]), fresh
-        retries = manager.retries
+        retries = manager.stats.retries
         cycles(manager, 5)
-        assert manager.retries == retries
+        assert manager.stats.retries == retries
     finally:
         manager.close()
 
@@ -304,7 +304,7 @@ def test_forced_fast_sync_keeps_serving_a_servo_that_does_not_answer_it() -> Non
         fresh = cycles(manager, 8)
         assert manager.read_mode_in_use == 'fast_sync'
         assert all(all(cycle.values()) for cycle in fresh[1:]), fresh
-        assert manager.retries >= 7
+        assert manager.stats.retries >= 7
     finally:
         manager.close()
 
@@ -352,7 +352,7 @@ def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> No
         """Put an earlier request's answer in flight, read again; return the bytes left behind."""
         port.write(earlier)   # a request whose answer is on its way (a stuck, late adapter)
         pending = bus.begin_sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast, linger)
-        result = bus.end_sync_read(pending)
+        result = pending.collect()
         assert all(isinstance(result.data[servo_id], bytes) for servo_id in IDS)
         time.sleep(0.01)   # whatever was still on its way has come
         return port.in_waiting

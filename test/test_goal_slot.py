@@ -21,7 +21,7 @@ from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos, GoalTracer
 import pytest
-from test_manager import BAUD, no_tasks, params, Rig, run_cycles, TapPort
+from test_manager import BAUD, no_tasks, params, read_states, Rig, run_cycles, TapPort
 
 SEED = units_for(model_for(1030))
 SLOT_ADDRESS = 246   # indirect data 23: after the 22-byte state block on every X table
@@ -183,7 +183,7 @@ def test_a_restarted_servo_gets_its_slot_back(rig: Rig) -> None:
     manager = _manager(rig)
     rig.sim.powercycle(3)
     rig.wait_booted(3)
-    manager.read_states()
+    read_states(manager)
     assert manager.servos['grip'].restarts == 1
     run_cycles(manager, no_tasks(manager))
     assert manager.servos['grip'].goal_slot is not None

@@ -1,5 +1,5 @@
 """
-The layering of STYLE.md: ros -> driver -> bus/transport -> protocol/models.
+The package's layering (ARCHITECTURE.md): ros -> driver -> bus/transport -> protocol/models.
 
 Nothing but the transport registry reaches the simulator; only the node imports rclpy, only
 the serial transport the serial library.

@@ -7,11 +7,10 @@ driver writes is parsed back into Protocol 2.0 packets.
 
 import math
 import time
-from typing import Any, Callable, Dict, List, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.config import DriverConfig, validate
-from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.manager import Manager, ManagerError
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
@@ -19,11 +18,12 @@ from dxl_servo_driver.protocol import Instruction, Packet, StreamParser
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
+from dxl_servo_driver.transports import SimTransport
 import pytest
 
 SEED = units_for(model_for(1030))
 SEED_BLOCK = state_block.state_block(model_for(1030), 'present_current')
-# The block's fields by register name (effort is present_current on the seed's model).
+# The block's fields by register name (effort is present_current on the XM430 manual's model).
 STATE_NAMES = tuple(SEED_BLOCK.register(name) for name in SEED_BLOCK.names)
 
 BAUD = 1_000_000
@@ -76,10 +76,12 @@ class Rig:
         self.tap = TapPort(SimPortHandler(self.sim, 'sim', BAUD))
         self.logs: List[str] = []
 
-    def open_port(self, _config: DriverConfig) -> Tuple[TapPort, SimBus]:
-        # Like opening the device again: a new port on the same servos, same tap.
-        self.tap.port = SimPortHandler(self.sim, 'sim', BAUD)
-        return self.tap, self.sim
+    def open_port(self, _config: DriverConfig) -> SimTransport:
+        def reopen() -> TapPort:
+            # Like opening the device again: a new port on the same servos, same tap.
+            self.tap.port = SimPortHandler(self.sim, 'sim', BAUD)
+            return self.tap
+        return SimTransport(self.sim, reopen)
 
     def manager(self, config: DriverConfig, **kwargs: Any) -> Manager:
         return Manager(config, info=self.logs.append, warn=self.logs.append,
@@ -126,6 +128,18 @@ def active(rig: Rig) -> Tuple[Rig, Manager]:
     return rig, manager
 
 
+def cycle_read(manager: Manager, retry_until: Optional[float] = None,
+               full: Optional[bool] = None) -> bool:
+    """Run one state read of the cycle as the node does; False when nothing was read."""
+    return manager.cycle_begin(full) and manager.cycle_end(retry_until)
+
+
+def read_states(manager: Manager, full: Optional[bool] = None,
+                retry_until: Optional[float] = None) -> None:
+    """Read every servo's state once (cycle_read, whatever it found)."""
+    cycle_read(manager, retry_until, full)
+
+
 def run_cycles(manager: Manager, done: Callable[[], bool], timeout_s: float = 5.0,
                step_s: float = 0.0) -> List[Dict[str, bool]]:
     """
@@ -137,7 +151,7 @@ def run_cycles(manager: Manager, done: Callable[[], bool], timeout_s: float = 5.
     deadline = time.monotonic() + timeout_s
     while not done():
         assert time.monotonic() < deadline, 'the cycles did not get there in time'
-        manager.cycle_read(retry_until=time.monotonic() + 0.01)
+        cycle_read(manager, retry_until=time.monotonic() + 0.01)
         manager.cycle_write(tasks_until=time.monotonic() + step_s)
         fresh.append({servo.name: servo.fresh for servo in manager.order})
         time.sleep(0.001)
@@ -207,7 +221,7 @@ def test_eeprom_write_turns_torque_off_first(rig: Rig) -> None:
 def test_one_sync_read_per_cycle_gives_the_simulator_state(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     rig.tap.packets.clear()
-    manager.read_states()
+    read_states(manager)
     assert [p.instruction for p in rig.tap.packets] == [Instruction.SYNC_READ]
     for servo in manager.order:
         assert servo.fresh
@@ -221,23 +235,23 @@ def test_cycles_read_motion_and_tick_and_the_whole_block_when_due(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
-    manager.read_states()             # the first read after activation is whole
+    read_states(manager)             # the first read after activation is whole
     rig.tap.packets.clear()
     for _ in range(3):
-        manager.read_states()
+        read_states(manager)
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
     assert lengths == [SEED_BLOCK.tagged_size] * 3   # every sample dated by its tick
     assert all(s.fresh for s in manager.order)
     # A hardware error raises the alert bit in every status: the next cycle reads it all.
     rig.sim.inject_error(2, 'overheat')
     rig.tap.packets.clear()
-    manager.read_states()
-    manager.read_states()
+    read_states(manager)
+    read_states(manager)
     lengths = [p.params[2] | (p.params[3] << 8) for p in rig.tap.packets]
     assert lengths == [SEED_BLOCK.tagged_size, SEED_BLOCK.size]
     state = dict(zip(STATE_NAMES, manager.servos['wheel'].state))
     assert state['hardware_error_status'] == rig.reg(2, 'hardware_error_status') == 0x04
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     assert rig.tap.packets[-1].params[2] == SEED_BLOCK.size
 
 
@@ -282,7 +296,7 @@ def test_goals_beyond_the_limits_are_clamped_with_a_warning(active: Tuple[Rig, M
     assert sum('clamped' in line for line in rig.logs) == 3
 
 
-def test_mode_switch_restores_what_the_seed_says_it_resets(active: Tuple[Rig, Manager]) -> None:
+def test_mode_switch_restores_what_the_manual_says_it_resets(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     result = manager.set_operating_mode(['arm'], 'extended_position')
     assert result.success, result.message
@@ -333,7 +347,7 @@ def test_reboot_clears_errors_and_restores_configuration(active: Tuple[Rig, Mana
     assert rig.reg(1, 'profile_velocity') == 200
     assert rig.reg(1, 'position_p_gain') == 900
     assert rig.reg(1, 'torque_enable') == 1
-    manager.read_states()
+    read_states(manager)
     assert manager.servos['arm'].fresh
 
 
@@ -341,16 +355,16 @@ def test_failed_reads_leave_the_joint_out_and_it_comes_back(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     rig.sim.set_drop(2, 1.0)
-    manager.read_states()
+    read_states(manager)
     assert [s.fresh for s in manager.order] == [True, False, True]
     assert manager.servos['wheel'].comm_errors == 1
     rig.sim.set_drop(2, 0.0)
     rig.sim.set_corrupt(3, 1.0)
-    manager.read_states()
+    read_states(manager)
     assert [s.fresh for s in manager.order] == [True, True, False]
     assert manager.bus.counters.corrupt >= 1
     rig.sim.set_corrupt(3, 0.0)
-    manager.read_states()
+    read_states(manager)
     assert all(s.fresh for s in manager.order)
 
 
@@ -361,7 +375,7 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
     rig.sim.powercycle(1)
     assert rig.reg(1, 'torque_enable') == 0 and rig.reg(1, 'profile_velocity') == 0
     rig.wait_booted(1)
-    manager.read_states()                 # sees the lost indirect map: starts restoring it
+    read_states(manager)                 # sees the lost indirect map: starts restoring it
     assert manager.servos['arm'].restarts == 1
     assert not manager.servos['arm'].fresh
     # The restore goes one transaction per cycle: the other servos are read every cycle.
@@ -375,7 +389,7 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
     # It holds where it is: the goal it had before its restart is not replayed.
     assert abs(rig.reg(1, 'goal_position') - rig.reg(1, 'present_position')) <= 2
     assert abs(rig.reg(1, 'goal_position') - SEED.position_from_rad(0.3)) > 50
-    manager.read_states()
+    read_states(manager)
     assert manager.servos['arm'].fresh
 
 
@@ -407,7 +421,7 @@ def test_missing_servo_refuses_or_skips(rig: Rig) -> None:
     skipping.configure()
     skipping.activate()
     assert [s.name for s in skipping.active_servos()] == ['arm', 'wheel']
-    skipping.read_states()
+    read_states(skipping)
     assert not skipping.servos['grip'].fresh
     result = skipping.command_now('current', ['grip'], [0.1])
     assert not result.success and 'not on the bus' in result.message
@@ -441,36 +455,37 @@ def test_the_model_a_joint_names_is_enforced(rig: Rig) -> None:
         manager.configure()
 
 
-def test_port_loss_is_a_port_error(active: Tuple[Rig, Manager]) -> None:
+def test_port_loss_is_taken_as_a_lost_port(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     rig.tap.port.unplug_port()
-    with pytest.raises(PortError):
-        manager.read_states()
+    assert not cycle_read(manager)   # the cycle's read found the port gone (a PortError)...
+    assert manager.port_lost and 'disconnected' in manager.port_error   # ... and took it so
+    assert not any(servo.fresh for servo in manager.order)
 
 
 def test_a_lost_reply_is_read_again_within_the_cycle_budget(rig: Rig) -> None:
     manager = rig.manager(validate(params(read_retries=3)))
     manager.configure()
     manager.activate()
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     # The servo drops half its status packets: with 3 retries within the budget the joint is
     # published in ~94 % of the cycles instead of ~50 %.
     rig.sim.set_drop(2, 0.5)
     fresh_without = 0
     for _ in range(40):
-        manager.read_states()
+        read_states(manager)
         fresh_without += manager.servos['wheel'].fresh
     fresh_with = 0
     for _ in range(40):
-        manager.read_states(retry_until=time.monotonic() + 0.5)
+        read_states(manager, retry_until=time.monotonic() + 0.5)
         fresh_with += manager.servos['wheel'].fresh
-    assert manager.retries > 0 and manager.retry_successes > 0
+    assert manager.stats.retries > 0 and manager.stats.retry_successes > 0
     assert fresh_with > fresh_without
     assert fresh_with >= 32
     # No budget left: no retry at all.
-    retries = manager.retries
-    manager.read_states(retry_until=time.monotonic() - 1.0)
-    assert manager.retries == retries
+    retries = manager.stats.retries
+    read_states(manager, retry_until=time.monotonic() - 1.0)
+    assert manager.stats.retries == retries
 
 
 def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
@@ -483,16 +498,16 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     deadline = time.monotonic() + 10.0
     while abs(rig.reg(1, 'present_position') - target) > 10 and time.monotonic() < deadline:
         time.sleep(0.02)
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     arm = manager.servos['arm']
     before = arm.last_joint_pulses()
     assert before is not None and abs(before - target) <= 10
     rig.sim.powercycle(1)
     rig.wait_booted(1)
     assert abs(rig.reg(1, 'present_position') - before) > 4096   # the turns are gone
-    manager.read_states()                                        # restart seen
+    read_states(manager)                                        # restart seen
     run_cycles(manager, no_tasks(manager), step_s=0.01)
-    manager.read_states()
+    read_states(manager)
     after = arm.last_joint_pulses()
     assert after is not None and abs(after - before) <= 64   # the horn coasted a little
     assert arm.turn_offset == 3 * 4096
@@ -514,8 +529,8 @@ def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None
     ticks = {i: rig.reg(i, 'realtime_tick') for i in (1, 2, 3)}
     rig.sim.inject_error(3, 'overload')
     assert rig.reg(3, 'torque_enable') == 0
-    manager.read_states()
-    manager.read_states(full=True)
+    read_states(manager)
+    read_states(manager, full=True)
     manager.recover_hardware_errors()
     assert manager.servos['grip'].recoveries == 1
     fresh = run_cycles(manager, no_tasks(manager))
@@ -528,11 +543,11 @@ def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None
     assert manager.servos['arm'].restarts == manager.servos['wheel'].restarts == 0
     # Rate-limited: a second error within recovery_interval waits.
     rig.sim.inject_error(3, 'overload')
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     manager.recover_hardware_errors()
     assert manager.servos['grip'].recoveries == 1
     now[0] += 6.0
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     manager.recover_hardware_errors()
     assert manager.servos['grip'].recoveries == 2
     run_cycles(manager, no_tasks(manager))
@@ -542,7 +557,7 @@ def test_hardware_error_recovery_reboots_only_the_faulty_servo(rig: Rig) -> None
 def test_hardware_errors_are_left_alone_by_default(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     rig.sim.inject_error(3, 'overheat')
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     manager.recover_hardware_errors()
     assert rig.reg(3, 'hardware_error_status') == 0x04
     assert manager.servos['grip'].recoveries == 0
@@ -551,17 +566,17 @@ def test_hardware_errors_are_left_alone_by_default(active: Tuple[Rig, Manager]) 
 def test_port_loss_then_reconnect(active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.reconnect_interval_s = 0.0
-    assert manager.cycle_read()
+    assert cycle_read(manager)
     assert manager.command('velocity', ['wheel'], [1.0]).success   # queued, not yet written
     rig.tap.port.unplug_port()
-    assert not manager.cycle_read()
+    assert not cycle_read(manager)
     assert manager.port_lost and 'unplugged' in manager.port_error
     assert not any(s.fresh for s in manager.order)
     # While the port is lost, goals are refused (never queued to be replayed later).
     refused = manager.command('position', ['arm'], [0.1])
     assert not refused.success and 'port is lost' in refused.message
     manager.cycle_write()                     # nothing to do, nothing raised
-    assert not manager.cycle_read()           # still gone
+    assert not cycle_read(manager)           # still gone
     # The adapter comes back, and the servos lost power with it.
     for servo_id in (1, 2, 3):
         rig.sim.powercycle(servo_id)
@@ -584,7 +599,7 @@ def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
     rig, manager = active
     manager.reconnect_interval_s = 0.0
     rig.tap.port.unplug_port()
-    assert not manager.cycle_read()
+    assert not cycle_read(manager)
     rig.sim.unplug(3)                         # it does not come back with the adapter
     rig.tap.port.plug_port()
     fresh = run_cycles(manager, lambda: manager.servos['arm'].fresh
@@ -603,18 +618,18 @@ def test_a_restart_is_caught_by_a_cycle_read_of_motion_and_tick(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
-    manager.read_states(full=True)
+    read_states(manager, full=True)
     rig.tap.packets.clear()
     rig.sim.powercycle(2)
     rig.wait_booted(2)
-    manager.read_states()                 # motion and tick: all zeros from servo 2
+    read_states(manager)                 # motion and tick: all zeros from servo 2
     lengths = [p.params[2] for p in rig.tap.packets if p.instruction == Instruction.SYNC_READ]
     assert lengths[0] == SEED_BLOCK.tagged_size
     assert manager.servos['wheel'].restarts == 1
     assert not manager.servos['wheel'].fresh        # nothing published from that read
     run_cycles(manager, no_tasks(manager), step_s=0.01)
     assert rig.reg(2, 'operating_mode') == 1 and rig.reg(2, 'torque_enable') == 1
-    manager.read_states()
+    read_states(manager)
     assert manager.servos['wheel'].fresh
 
 
@@ -624,8 +639,8 @@ def test_a_horn_at_minus_pi_at_rest_is_not_a_restart(active: Tuple[Rig, Manager]
     assert manager.set_torque(['arm'], False).success
     rig.sim.servo(1).dynamics.horn_position_pulse = 0.0   # raw 0, no motion, no current
     time.sleep(0.005)
-    manager.read_states(full=True)
-    manager.read_states()
+    read_states(manager, full=True)
+    read_states(manager)
     arm = manager.servos['arm']
     assert arm.fresh and arm.restarts == 0
     assert arm.state[0] == 0 and SEED.position_to_rad(arm.state[0]) == -math.pi

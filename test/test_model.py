@@ -56,7 +56,7 @@ def test_units_match_the_seed() -> None:
     assert math.isclose(SEED.current_to_a(1000), 2.69)
     assert SEED.pwm_to_ratio(885) == 1.0
     assert math.isclose(SEED.voltage_to_v(120), 12.0)
-    # Seed datasheet: 4.1 N.m at 2.3 A, for 1030 and 1020 alike (the seed wins for 1030).
+    # The XM430 manual's datasheet: 4.1 N.m at 2.3 A, for 1030 and 1020 alike (it wins for 1030).
     assert math.isclose(SEED.torque_constant_nm_per_a * 2.3, 4.1)
     assert math.isclose(SEED.effort_to_nm(1000), 2.69 * 4.1 / 2.3)
     assert units_for(model_for(1020)).torque_constant_nm_per_a == SEED.torque_constant_nm_per_a
@@ -106,7 +106,7 @@ def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
     # The block's indirect data bytes are consecutive: one read fetches them.
     data = [pair[1] for pair in table.indirect[:block.size]]
     assert data == list(range(block.read_address, block.read_address + block.size))
-    # The seed's table and every model since the X330 moved its block: 224; before: 208.
+    # The manual's table and every model since the X330 moved its block: 224; before: 208.
     old_x330 = table.family in ('XL330', 'XC330') and table.min_firmware == 0
     assert block.read_address == (208 if old_x330 else 224)
     assert block.indirect_map_address() == 168
@@ -132,7 +132,8 @@ def test_state_block_decodes_signed_values() -> None:
 
 
 def test_bus_budget_matches_the_spec_formula() -> None:
-    # SPEC section 5: sync read of 10 bytes = (14 + N) + 21 N, sync write of 4 bytes = 14 + 5 N.
+    # The benchmark's count (README, Benchmark): sync read of 10 bytes = (14 + N) + 21 N,
+    # sync write of 4 bytes = 14 + 5 N.
     for n in (1, 6, 12, 24):
         budget = state_block.bus_budget(n, 4_000_000, read_length=10, write_length=4)
         assert budget.bytes_per_cycle == (14 + n) + 21 * n + 14 + 5 * n

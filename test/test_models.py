@@ -1,4 +1,4 @@
-"""The model catalogue: SDK model files, the seed, internal consistency and look-ups."""
+"""The model catalogue: SDK model files, the XM430 manual, internal consistency and look-ups."""
 
 from dataclasses import replace
 import importlib.util
@@ -31,7 +31,7 @@ SDK_ALIASES = {
     'Indirect Address Write': 'indirect_address_', 'Indirect Address Read': 'indirect_address_',
     'Indirect Data Write': 'indirect_data_', 'Indirect Data Read': 'indirect_data_',
 }
-# Items our tables have beyond the model files (all from the e-manual or the seed).
+# Items our tables have beyond the model files (all from the e-manual or the XM430 manual).
 EXTRAS = {'startup_configuration', 'backup_ready'}
 SEED_ONLY = {'acceleration_limit'}
 
@@ -142,21 +142,21 @@ def test_every_other_sdk_model_is_refused_by_name() -> None:
         assert _squash(file_name.removesuffix('.model')) in _squash(reason), (number, reason)
 
 
-# --- the seed ------------------------------------------------------------------------------
+# --- the XM430 manual -----------------------------------------------------------------------
 
 
 @pytest.mark.parametrize('number', [1020, 1030])
-def test_xm430_tables_carry_the_seed_items_unchanged(number: int) -> None:
+def test_xm430_tables_carry_the_manuals_items_unchanged(number: int) -> None:
     model = model_for(number)
-    for seed in xm430.ITEMS:
-        ours = model.item(seed.name)
-        if seed.name == 'model_number':
-            # The seed is model 1030; only the number it reports differs for 1020.
+    for manual_item in xm430.ITEMS:
+        ours = model.item(manual_item.name)
+        if manual_item.name == 'model_number':
+            # The manual's is model 1030; only the number it reports differs for 1020.
             assert ours.initial == number
-            assert replace(ours, initial=xm430.MODEL_NUMBER) == seed
+            assert replace(ours, initial=xm430.MODEL_NUMBER) == manual_item
         else:
-            assert ours == seed
-    added = {item.name for item in model.items} - {seed.name for seed in xm430.ITEMS}
+            assert ours == manual_item
+    added = {item.name for item in model.items} - {manual_item.name for manual_item in xm430.ITEMS}
     assert added == {'drive_mode', 'secondary_id', 'bus_watchdog', 'startup_configuration',
                      'backup_ready'}
     assert model.modes == modes.numbers(*modes.NAMES)
@@ -164,20 +164,20 @@ def test_xm430_tables_carry_the_seed_items_unchanged(number: int) -> None:
     assert model.hardware_error_bits == xm430.HARDWARE_ERROR_BITS
 
 
-def test_seed_datasheet_is_the_xm430_w350_one() -> None:
-    # Seed manual: 353.5:1; 3.8/4.1/4.8 N.m at 11.1/12/14.8 V, 2.1/2.3/2.7 A, 43/46/57 rpm.
+def test_the_manuals_datasheet_is_the_xm430_w350_one() -> None:
+    # The XM430 manual: 353.5:1; 3.8/4.1/4.8 N.m at 11.1/12/14.8 V, 2.1/2.3/2.7 A, 43/46/57 rpm.
     physics = model_for(1020).physics
     assert physics.gear_ratio == 353.5 and physics.nominal_voltage_v == 12.0
     rows = [(p.voltage_v, p.stall_torque_nm, p.stall_current_a, p.no_load_speed_rpm)
             for p in physics.points]
     assert rows == [(11.1, 3.8, 2.1, 43), (12.0, 4.1, 2.3, 46), (14.8, 4.8, 2.7, 57)]
     assert model_for(1020).torque_constant_nm_per_a == pytest.approx(4.1 / 2.3)
-    # The seed (model 1030) wins over the e-manual's XM430-W210 figures for 1030.
+    # The manual (model 1030) wins over the e-manual's XM430-W210 figures for 1030.
     assert (model_for(1030).physics.gear_ratio, model_for(1030).physics.points) == (
         physics.gear_ratio, physics.points)
 
 
-def test_seed_differences_are_listed() -> None:
+def test_the_manuals_differences_are_listed() -> None:
     text = ' '.join(MANUAL_DIFFERENCES)
     for name in ('Drive Mode', 'Secondary(Shadow) ID', 'Bus Watchdog', 'Acceleration Limit',
                  'Startup Configuration', 'Backup Ready'):

@@ -1,4 +1,4 @@
-"""mypy over the layers below the node (STYLE.md: the pure layers are type-annotated)."""
+"""mypy over the layers below the node (they are type-annotated: ARCHITECTURE.md)."""
 
 import pathlib
 

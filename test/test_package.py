@@ -21,7 +21,7 @@ def test_messages_have_the_spec_fields() -> None:
         'temperature': 'double', 'moving': 'boolean', 'moving_status': 'uint8',
         'hardware_error_status': 'uint8', 'hardware_errors': 'sequence<string>',
         'comm_errors': 'uint32',
-        # beyond SPEC's "at least": the model's name, a gripper's grasp
+        # beyond the fields required of it: the model's name, a gripper's grasp
         'model': 'string', 'grasping': 'boolean'}
     assert GripperCommand.get_fields_and_field_types() == {
         'name': 'string', 'position': 'double', 'ratio': 'double', 'max_effort': 'double'}

@@ -28,19 +28,19 @@ def booting(clock: Clock, log: List[str], boot_s: float) -> Steps:
 def test_a_waiting_task_is_not_stepped_before_its_time() -> None:
     clock = Clock()
     log: List[str] = []
-    done: List[Task] = []
-    runner = TaskRunner(done.append, lambda task, exc: None, clock)
+    runner = TaskRunner(clock)
     runner.add(Task('gripper', 'reboot', booting(clock, log, boot_s=1.0)))
     # A cycle with 5 ms to spare: the task sends its reboot, says when it wakes, and the
     # runner returns at once instead of stepping it round until the budget is spent.
-    assert runner.run(clock.now + 0.005) == 2
+    assert runner.run(clock.now + 0.005) == (2, [])
     assert log == ['reboot sent']
     for _ in range(99):   # 99 cycles of 10 ms: still booting, not a single step
         clock.now += 0.01
-        assert runner.run(clock.now + 0.005) == 0
+        assert runner.run(clock.now + 0.005) == (0, [])
     clock.now += 0.01
-    assert runner.run(clock.now + 0.005) == 1
-    assert log == ['reboot sent', 'ping at +0.000'] and done
+    steps, ended = runner.run(clock.now + 0.005)
+    assert steps == 1 and [(task.joint, error) for task, error in ended] == [('gripper', None)]
+    assert log == ['reboot sent', 'ping at +0.000'] and 'gripper' not in runner
 
 
 def test_steps_share_the_budget_round_robin() -> None:
@@ -52,10 +52,11 @@ def test_steps_share_the_budget_round_robin() -> None:
             order.append(name)
             yield
 
-    runner = TaskRunner(lambda task: None, lambda task, exc: None, clock)
+    runner = TaskRunner(clock)
     runner.add(Task('a', 'restore', work('a')))
     runner.add(Task('b', 'restore', work('b')))
-    steps = runner.run(clock.now + 0.010)
+    steps, ended = runner.run(clock.now + 0.010)
+    assert ended == []
     assert 3 <= steps <= 6
     assert order[:4] == ['a', 'b', 'a', 'b']
 

@@ -16,7 +16,7 @@ from dxl_servo_driver.driver.clock import TICK_PERIOD_MS, TickClock
 from lifecycle_msgs.msg import Transition
 from node_harness import NodeHarness, sim_params
 import pytest
-from test_manager import params, Rig
+from test_manager import cycle_read, params, Rig
 
 IDS = (1, 2, 3)
 WRAP_IN_S = 1.0
@@ -44,10 +44,10 @@ def test_configure_activate_and_reads_hold_across_the_wrap_and_after_a_cleanup()
         fresh = []
         deadline = time.monotonic() + 0.1
         while time.monotonic() < deadline:
-            manager.cycle_read(retry_until=time.monotonic() + 0.01)
+            cycle_read(manager, retry_until=time.monotonic() + 0.01)
             fresh.append(all(servo.fresh for servo in manager.order))
         assert fresh and all(fresh), f'tick {tick_ms}: a fresh sample was refused'
-        assert manager.stale_refused == 0
+        assert manager.stats.stale_refused == 0
         assert manager.deactivate() == []
         manager.close()   # cleanup: the servos keep running, their ticks with them
 
@@ -69,14 +69,14 @@ def test_service_reads_hold_while_the_tick_wraps() -> None:
         ticks.append(tick)
         position, message = manager.read_register(servo.name, 'present_position')
         assert position is not None, message
-        manager.cycle_read(retry_until=time.monotonic() + 0.01)
+        cycle_read(manager, retry_until=time.monotonic() + 0.01)
         assert servo.fresh
         if ticks[-1] < TICK_PERIOD_MS - 50 and len(ticks) > 10 and ticks[-1] > 50:
             time.sleep(0.01)   # far from the wrap: no need to hurry
     wrapped = next(i for i, (a, b) in enumerate(zip(ticks, ticks[1:])) if b < a)
     ticks = ticks[wrapped:wrapped + 2]
     assert ticks[0] > TICK_PERIOD_MS - 100 and ticks[1] < 100, ticks
-    assert manager.stale_refused == 0
+    assert manager.stats.stale_refused == 0
 
 
 def test_a_servo_restarted_while_unconfigured_is_configured_again() -> None:
@@ -131,4 +131,4 @@ def test_configure_straight_after_cleanup_on_the_simulated_bus() -> None:
             h.joint_states.wait(lambda m: len(m.name) == len(IDS))
             response = h.call('read_register', name='j1', register_name='present_position')
             assert response.success, response.message
-        assert h.node.manager.stale_refused == 0
+        assert h.node.manager.stats.stale_refused == 0

@@ -48,9 +48,9 @@ def cycle_threads() -> int:
 
 def cycles_in(h: NodeHarness, seconds: float) -> int:
     assert h.node is not None
-    first = h.node.manager.cycles
+    first = h.node.manager.stats.cycles
     time.sleep(seconds)
-    return h.node.manager.cycles - first
+    return h.node.manager.stats.cycles - first
 
 
 def transition(h: NodeHarness, transition_id: int) -> None:
@@ -64,13 +64,13 @@ def check_settled(h: NodeHarness, before: int) -> None:
     manager = h.node.manager
     h.joint_states.wait(lambda m: len(m.name) == len(IDS))
     time.sleep(0.3)   # the first full reads after the activation
-    failures = manager.read_failures
-    refused = manager.stale_refused
+    failures = manager.stats.read_failures
+    refused = manager.stats.stale_refused
     after = cycles_in(h, WINDOW_S)
     assert cycle_threads() == 1 and h.node._runner.cycle_threads == 1
     assert after >= RATE_KEPT * before, f'{after} cycles in {WINDOW_S} s, {before} before'
-    assert manager.read_failures == failures, manager.read_failures - failures
-    assert manager.stale_refused == refused
+    assert manager.stats.read_failures == failures, manager.stats.read_failures - failures
+    assert manager.stats.stale_refused == refused
     diagnostics = h.diagnostics.wait(
         lambda array: any(value.key == 'cycle_threads' and value.value == '1'
                           for status in array.status for value in status.values),
@@ -146,7 +146,7 @@ def test_an_aborted_read_is_waited_out_not_answered_later() -> None:
     tick = sim.servo(1).model.item('realtime_tick')
     ticks: List[int] = []
     for _ in range(5):
-        bus.abort(bus.begin_sync_read(tick.address, tick.size, IDS))   # given up at once
+        bus.begin_sync_read(tick.address, tick.size, IDS).abort()   # given up at once
         time.sleep(0.002)   # the next request goes out while those replies are on their way
         asked_tick = sim.read_register(1, 'realtime_tick')
         result = bus.sync_read(tick.address, tick.size, IDS)

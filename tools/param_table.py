@@ -1,31 +1,47 @@
-"""Print the README's parameter reference table from dxl_servo_driver/config.py."""
+"""Print the README's parameter tables (top level, per joint) from dxl_servo_driver/config.py."""
 
 import pathlib
 import sys
+from typing import List
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
-from dxl_servo_driver.config import PARAMS  # noqa: E402 - after the path set-up
+from dxl_servo_driver.config import JOINT_PARAMS, PARAMS, ParamSpec  # noqa: E402 - path set-up
+
+_KINDS = {'list': 'string[]', 'float': 'double', 'str': 'string'}
+# The open family of joint parameters, judged against the servo's control table.
+REGISTERS_ROW = (
+    '| `<joint>.registers.<name>` | int | | | | any writable control-table item by its '
+    'snake_case name, raw units (`profile_velocity`, `position_p_gain`, `return_delay_time`, '
+    '`max_position_limit`, ...), applied at configure; EEPROM items only where the servo '
+    'differs, with torque off, then read back |')
 
 
-def rows() -> list:
-    """Return the table's lines."""
-    lines = ['| name | type | default | unit | range | description |',
-             '|---|---|---|---|---|---|']
-    for spec in PARAMS:
-        if spec.choices:
-            allowed = ', '.join(str(c) for c in spec.choices)
-        elif spec.minimum is not None:
-            allowed = f'{spec.minimum:g} .. {spec.maximum:g}'
-        else:
-            allowed = ''
-        default = spec.default if spec.default != [] else '(required)'
-        if isinstance(default, bool):
-            default = str(default).lower()
-        kind = {'list': 'string[]'}.get(spec.kind.__name__, spec.kind.__name__)
-        kind = {'float': 'double', 'str': 'string'}.get(kind, kind)
-        lines.append(f'| `{spec.name}` | {kind} | `{default}` | {spec.unit} | {allowed} | '
-                     f'{spec.description} |')
+def _row(spec: ParamSpec, name: str) -> str:
+    if spec.choices:
+        allowed = ', '.join(str(c) for c in spec.choices)
+    elif spec.minimum is not None:
+        allowed = f'{spec.minimum:g} .. {spec.maximum:g}'
+    else:
+        allowed = ''
+    default = spec.shown or spec.default
+    if isinstance(default, bool):
+        default = str(default).lower()
+    default = f'`{default}`' if not spec.shown else default
+    kind = _KINDS.get(spec.kind.__name__, spec.kind.__name__)
+    when = ' Changes at run time.' if spec.runtime else ''
+    only = f' Only for `<joint>.{spec.only_for}: true`.' if spec.only_for else ''
+    return (f'| `{name}` | {kind} | {default} | {spec.unit} | {allowed} | '
+            f'{spec.description}{when}{only} |')
+
+
+def rows() -> List[str]:
+    """Return the lines of both tables."""
+    header = ['| name | type | default | unit | range | description |',
+              '|---|---|---|---|---|---|']
+    lines = header + [_row(spec, spec.name) for spec in PARAMS]
+    lines += [''] + header + [_row(spec, f'<joint>.{spec.name}') for spec in JOINT_PARAMS]
+    lines.append(REGISTERS_ROW)
     return lines
 
 

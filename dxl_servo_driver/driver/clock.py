@@ -6,7 +6,7 @@ Pure arithmetic, per servo: the driver keeps one TickClock in each servo's recor
 
 from typing import Optional
 
-TICK_PERIOD_MS = 32768   # Realtime Tick counts milliseconds and wraps after 32767
+from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
 
 
 def _wrap_ms(value: float) -> float:

@@ -11,25 +11,22 @@ does not answer well keeps fresh False: left out of what is published, never giv
 or invented value.
 """
 
-from dataclasses import dataclass
 import struct
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple, TypeVar
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import SyncRead, SyncResult
-from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.driver.goals import Goals
-from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.context import Context
+from dxl_servo_driver.driver.goals import Goals, Pending
 from dxl_servo_driver.driver.servo import (
-    BLOCK, IDX_CANARY, IDX_HW_ERROR, IDX_TICK, Log, Roster, Servo, StaleGuard, Throttle)
+    BLOCK, IDX_CANARY, IDX_HW_ERROR, IDX_TICK, Servo, Throttle)
 from dxl_servo_driver.errors import CommError, StatusError
-from dxl_servo_driver.tasks import TaskRunner
+from dxl_servo_driver.protocol import READ_PACKET_SIZE, STATUS_OVERHEAD
 
-STATUS_BYTES = 11   # status packet overhead
-READ_BYTES = 14     # a READ instruction packet
 _NO_HEALTH = (0,) * (len(BLOCK.names) - BLOCK.TAGGED_FIELDS)
+T = TypeVar('T')
 # A servo that missed this many sync reads in a row is not retried on its own in a cycle.
 SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
@@ -39,33 +36,77 @@ SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, d
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
 
-@dataclass
-class _Reading:
-    """The cycle's sync read in flight."""
+class ReadInFlight:
+    """
+    The cycle's sync read on the wire, owning the manager's lock (and the bus's) until it ends.
 
-    stamp: float
-    full: bool
-    length: int
-    pending: SyncRead
+    start() takes the manager's lock and puts the read on the wire; finish() (collect and
+    process) or abort() ends it, once, in the same thread: this class is the only place that
+    takes and releases the read's locks. In between, the caller may only do work that needs
+    neither (publishing the last cycle).
+    """
+
+    def __init__(self, lock: threading.RLock, pending: SyncRead, stamp: float, full: bool,
+                 length: int) -> None:
+        self._lock = lock
+        self.pending = pending
+        self.stamp = stamp
+        self.full = full
+        self.length = length
+        self.ended = False
+
+    @classmethod
+    def start(cls, lock: threading.RLock,
+              begin: Callable[[], Optional[Tuple[SyncRead, float, bool, int]]]
+              ) -> Optional['ReadInFlight']:
+        """Take the lock and begin(); None (the lock released) when begin() read nothing."""
+        lock.acquire()
+        try:
+            started = begin()
+        except BaseException:
+            lock.release()
+            raise
+        if started is None:
+            lock.release()
+            return None
+        return cls(lock, *started)
+
+    def finish(self, process: Callable[[SyncResult], T]) -> T:
+        """Collect the answers, process them (the lock still held), release the lock."""
+        if self.ended:
+            raise RuntimeError('the read in flight ended already')
+        self.ended = True
+        try:
+            return process(self.pending.collect())
+        finally:
+            self._lock.release()
+
+    def abort(self) -> None:
+        """Give the read up and release the locks (idempotent)."""
+        if self.ended:
+            return
+        self.ended = True
+        try:
+            self.pending.abort()
+        finally:
+            self._lock.release()
 
 
 class Cycle:
     """The state read and the goal write of every cycle, and their counters."""
 
-    def __init__(self, config: DriverConfig, lock: threading.RLock, roster: Roster,
-                 link: Link, tasks: TaskRunner, goals: Goals, stale: StaleGuard,
-                 restarted: Callable[[Servo], None], clock: Callable[[], float],
-                 warn: Log) -> None:
-        self.config = config
-        self._lock = lock
-        self._roster = roster
-        self._link = link
-        self._tasks = tasks   # joints with a task in progress are left out of the read
+    def __init__(self, ctx: Context, goals: Goals) -> None:
+        self._ctx = ctx
+        self._lock = ctx.lock
+        self._roster = ctx.roster
+        self._link = ctx.link
+        self._tasks = ctx.tasks   # joints with a task in progress are left out of the read
         self._goals = goals
-        self._stale = stale
-        self._restarted = restarted
-        self._clock = clock
-        self._warn_throttled = Throttle(warn, clock=clock)
+        self._stale = ctx.stale
+        self._clock = ctx.clock
+        self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
+        # Servos found restarted on their own by the last read: recovery takes them.
+        self.restarted: List[Servo] = []
         self.cycles = 0
         self.read_failures = 0
         self.retries = 0
@@ -77,7 +118,7 @@ class Cycle:
         self._last_full_s = -1e9
         self._need_full = True
         self._ids: List[Tuple[Servo, int]] = []
-        self._reading: Optional[_Reading] = None
+        self._reading: Optional[ReadInFlight] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
         self._groups: List[Tuple[state_block.StateBlock, List[int]]] = []
         # Fast Sync Read: in use now; given up for good (read_mode auto) after fast reads in a
@@ -104,121 +145,87 @@ class Cycle:
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
         self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
-        mode = self.config.read_mode
+        mode = self._ctx.config.read_mode
         self.fast = bool(self._ids) and (mode == 'fast_sync' or (
             mode == 'auto' and not self.fast_given_up
             and all(servo.model.has_fast_sync_read(servo.firmware_version)
                     for servo, _ in self._ids)))
 
     # the read -----------------------------------------------------------------------------
-    def read_states(self, full: Optional[bool] = None,
-                    retry_until: Optional[float] = None) -> float:
-        """
-        Read every servo's state with one sync read; return the read's monotonic time.
-
-        The motion part of the block is read every cycle (with the Realtime Tick while the bus
-        is suspicious); the whole block (health too) when `full`, or by default every
-        health_period_s, when a servo raised its alert bit, or when a servo has no health values
-        yet. A servo whose reply was lost or corrupted is read again on its own (read_retries
-        times) while the clock is before retry_until (the cycle's budget). A servo that still
-        does not answer well, or whose sample is older than its request, keeps fresh False: it
-        is left out of what is published, never given a stale or invented value.
-        """
-        if self.begin_read(full):
-            self.end_read(retry_until)
-        return self.last_read_time
-
     def begin_read(self, full: Optional[bool] = None) -> bool:
         """
         Put the cycle's sync read on the wire and return; end_read() collects it.
 
-        The manager's lock (and the bus's) stay held until end_read() or abort_read(), in the
-        same thread: in between, the caller may only do work that needs neither (publishing the
-        last cycle). False (nothing in flight, no lock held) when no servo is to be read.
+        The read in flight (ReadInFlight) holds the manager's lock and the bus's until
+        end_read() or abort_read(), in the same thread. False (nothing in flight, no lock held)
+        when no servo is to be read.
         """
-        self._lock.acquire()
-        try:
-            bus = self._link.io()
-            if not self._groups:
-                self._lock.release()
-                return False
-            stamp = self._clock()
-            if full is None:
-                full = (stamp - self._last_full_s >= self.health_period_s
-                        or self._need_full)
-            # Every read carries the servo's Realtime Tick, which dates each sample: a reply
-            # has nothing but its id and length to tie it to its request, and an adapter that
-            # hands over an old reply late (in the place of one it lost) is caught by nothing
-            # else. The whole block (health too) every health_period_s.
-            length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
-            block, ids = self._groups[0]
-            pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
-                                          self.fast, self._linger_next)
-            self._linger_next = False
-        except BaseException:
-            self._lock.release()
-            raise
-        self._reading = _Reading(stamp, full, length, pending)
-        return True
+        self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full))
+        return self._reading is not None
+
+    def _begin(self, full: Optional[bool]) -> Optional[Tuple[SyncRead, float, bool, int]]:
+        bus = self._link.io()
+        if not self._groups:
+            return None
+        stamp = self._clock()
+        if full is None:
+            full = stamp - self._last_full_s >= self.health_period_s or self._need_full
+        # Every read carries the servo's Realtime Tick, which dates each sample: a reply has
+        # nothing but its id and length to tie it to its request, and an adapter that hands
+        # over an old reply late (in the place of one it lost) is caught by nothing else. The
+        # whole block (health too) every health_period_s.
+        length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
+        block, ids = self._groups[0]
+        pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
+                                      self.fast, self._linger_next)
+        self._linger_next = False
+        return pending, stamp, full, length
 
     def abort_read(self) -> None:
         """Give up the sync read in flight, if any, and release the locks (idempotent)."""
-        reading = self._reading
-        if reading is None:
-            return
-        self._reading = None
-        try:
-            if self._link.bus is not None:
-                self._link.bus.abort(reading.pending)
-        finally:
-            self._lock.release()
-
-    def drop_read(self) -> None:
-        """Give up the sync read in flight at close (the lock is left as it is)."""
-        if self._reading is not None and self._link.bus is not None:
-            self._link.bus.abort(self._reading.pending)
-            self._reading = None
+        reading, self._reading = self._reading, None
+        if reading is not None:
+            reading.abort()
 
     def end_read(self, retry_until: Optional[float] = None) -> float:
         """Collect the sync read begun by begin_read(); return its monotonic time."""
-        reading = self._reading
+        reading, self._reading = self._reading, None
         if reading is None:
             raise RuntimeError('end_read() without a read in flight')
-        self._reading = None
-        try:
-            bus = self._link.io()
-            result = bus.end_sync_read(reading.pending)
-            received = time.monotonic()   # the bus dates requests on this clock
-            for block, ids in self._groups[1:]:
-                # Models whose state block lives elsewhere (an X330 before firmware 53): one
-                # more sync read each layout, dated on their own.
-                more = bus.sync_read(block.read_address, _group_length(block, reading.length),
-                                     ids, reading.pending.fast)
-                got = time.monotonic()
-                result.data.update(more.data)
-                result.alerts.update(more.alerts)
-                result.dated.update({sid: (more.sent_s, got) for sid in ids})
-                result.dated.update(more.dated)
-                result.clean = result.clean and more.clean
-            fast_parts = -1
-            if reading.pending.fast:
-                fast_parts = sum(isinstance(data, bytes) for data in result.data.values())
-            if (retry_until is not None and self.config.read_retries
-                    and not result.clean):
-                self._retry_failed(result, reading.length, retry_until)
-            if fast_parts >= 0:
-                self._judge_fast(fast_parts, result)
-            self._need_full = False
-            if reading.full:
-                self._last_full_s = reading.stamp
-            refused = self._stale.refused
-            self._take_results(result, reading.stamp, received)
-            self._linger_next = self._stale.refused > refused
-            self.cycles += 1
-            self.last_read_time = reading.stamp
-            return reading.stamp
-        finally:
-            self._lock.release()
+        return reading.finish(lambda result: self._taken(reading, result, retry_until))
+
+    def _taken(self, reading: ReadInFlight, result: SyncResult,
+               retry_until: Optional[float]) -> float:
+        """Complete a cycle's read: the other layouts, retries, samples taken (lock held)."""
+        bus = self._link.io()
+        received = time.monotonic()   # the bus dates requests on this clock
+        for block, ids in self._groups[1:]:
+            # Models whose state block lives elsewhere (an X330 before firmware 53): one more
+            # sync read each layout, dated on their own.
+            more = bus.sync_read(block.read_address, _group_length(block, reading.length), ids,
+                                 reading.pending.fast)
+            got = time.monotonic()
+            result.data.update(more.data)
+            result.alerts.update(more.alerts)
+            result.dated.update({sid: (more.sent_s, got) for sid in ids})
+            result.dated.update(more.dated)
+            result.clean = result.clean and more.clean
+        fast_parts = -1
+        if reading.pending.fast:
+            fast_parts = sum(isinstance(data, bytes) for data in result.data.values())
+        if retry_until is not None and self._ctx.config.read_retries and not result.clean:
+            self._retry_failed(result, reading.length, retry_until)
+        if fast_parts >= 0:
+            self._judge_fast(fast_parts, result)
+        self._need_full = False
+        if reading.full:
+            self._last_full_s = reading.stamp
+        refused = self._stale.refused
+        self._take_results(result, reading.stamp, received)
+        self._linger_next = self._stale.refused > refused
+        self.cycles += 1
+        self.last_read_time = reading.stamp
+        return reading.stamp
 
     def _judge_fast(self, fast_parts: int, result: SyncResult) -> None:
         """
@@ -234,7 +241,7 @@ class Cycle:
         if not result.dated:
             return
         self._fast_empty += 1
-        if self.config.read_mode == 'auto' and self._fast_empty >= FAST_EMPTY_LIMIT:
+        if self._ctx.config.read_mode == 'auto' and self._fast_empty >= FAST_EMPTY_LIMIT:
             self.fast = False
             self.fast_given_up = True
             self._warn_throttled(
@@ -287,7 +294,7 @@ class Cycle:
                 full = True
             elif full and values[IDX_CANARY] == 0:
                 servo.fresh = False
-                self._restarted(servo)
+                self.restarted.append(servo)
                 continue
             else:
                 when = dated.get(servo_id, (sent_s, received))
@@ -332,7 +339,7 @@ class Cycle:
         values = servo.block.decode(data)
         if values[IDX_CANARY] == 0:
             servo.fresh = False
-            self._restarted(servo)
+            self.restarted.append(servo)
             return None
         if not self._stale.check(servo, values[IDX_TICK], sent_s, time.monotonic()):
             return None
@@ -342,7 +349,7 @@ class Cycle:
         bus = self._link.io()
         # A retry always reads the tick: the bus is suspicious after a failure.
         length = max(length, BLOCK.tagged_size)
-        one_read_s = bus.reply_timeout_s(STATUS_BYTES + length, 1, READ_BYTES)
+        one_read_s = bus.reply_timeout_s(STATUS_OVERHEAD + length, 1, READ_PACKET_SIZE)
         silent = {servo.servo_id for servo, _ in self._ids
                   if servo.consecutive_failures >= SILENT_AFTER_FAILURES}
         for servo_id, data in list(result.data.items()):
@@ -350,7 +357,7 @@ class Cycle:
                 continue   # a status error is the servo's answer: asking again changes nothing
             if servo_id in silent:
                 continue   # gone for now: the sync read keeps asking; retries serve the others
-            for _ in range(self.config.read_retries):
+            for _ in range(self._ctx.config.read_retries):
                 if self._clock() + one_read_s > until:
                     break
                 self.retries += 1
@@ -381,22 +388,7 @@ class Cycle:
             if not self._goals.waiting() or bus is None:
                 return 0
             by_id = self._roster.by_id
-            with self._goals.lock:
-                pending = self._goals.take_locked()
-                needs: Dict[int, int] = {}   # servo id -> slot bytes its changed goals need
-                loose: Dict[str, Dict[int, int]] = {}   # register -> {servo id: raw}
-                written = 0
-                for register, goals in pending.items():
-                    written += len(goals)
-                    for sid, value in goals.items():
-                        servo = by_id[sid]
-                        slot = servo.goal_slot
-                        if (slot is None or register not in slot.needs
-                                or not slot.holds(servo.goal_raw)):
-                            loose.setdefault(register, {})[sid] = value
-                        else:
-                            needs[sid] = max(slot.needs[register], needs.get(sid, 0))
-                writes = self._slot_writes(needs)
+            written, writes, loose = self._goals.take(self._pack)
             for address, length, data in writes:
                 bus.sync_write(address, length, data)
             for register, goals in loose.items():
@@ -411,12 +403,30 @@ class Cycle:
                     bus.sync_write(address, size, data)
             return written
 
-    def _slot_writes(self, needs: Dict[int, int]) -> List[SyncWrite]:
+    def _pack(self, pending: Pending) -> Tuple[int, List[SyncWrite], Pending]:
         """
-        Return the sync writes (address, length, data) of the servos whose goals need a slot.
+        Return (goals taken, the slot writes, the goals written per register) of the queue.
 
-        Packed under the queue's lock, so every slot register goes out at its latest goal.
+        Run by Goals.take under the queue's lock, so every slot register goes out at its
+        latest goal.
         """
+        by_id = self._roster.by_id
+        needs: Dict[int, int] = {}   # servo id -> slot bytes its changed goals need
+        loose: Pending = {}
+        written = 0
+        for register, goals in pending.items():
+            written += len(goals)
+            for sid, value in goals.items():
+                servo = by_id[sid]
+                slot = servo.goal_slot
+                if slot is None or register not in slot.needs or not slot.holds(servo.goal_raw):
+                    loose.setdefault(register, {})[sid] = value
+                else:
+                    needs[sid] = max(slot.needs[register], needs.get(sid, 0))
+        return written, self._slot_writes(needs), loose
+
+    def _slot_writes(self, needs: Dict[int, int]) -> List[SyncWrite]:
+        """Return the sync writes (address, length, data) of the servos whose goals need a slot."""
         by_id = self._roster.by_id
         slotted = [(by_id[sid], need) for sid, need in needs.items()]
         lengths: Dict[int, int] = {}   # slot address -> the longest need there

@@ -14,32 +14,30 @@ are needed: the manager's lock, then this one.
 
 import math
 import threading
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
-from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.driver.servo import (
-    clamp_position, Log, PortState, Result, Roster, Servo, Throttle)
+from dxl_servo_driver.driver.context import Context
+from dxl_servo_driver.driver.servo import clamp_position, Result, Servo, Throttle
 from dxl_servo_driver.models import modes
-from dxl_servo_driver.tasks import TaskRunner
 
 Goal = Tuple[Servo, str, int]   # the servo, its goal register, the raw value
 Pending = Dict[str, Dict[int, int]]   # register -> {servo id: raw goal}
+T = TypeVar('T')
 
 
 class Goals:
     """The goals queued since the last write."""
 
-    def __init__(self, config: DriverConfig, roster: Roster, tasks: TaskRunner,
-                 port: PortState, clock: Callable[[], float], warn: Log) -> None:
-        self.config = config
+    def __init__(self, ctx: Context) -> None:
+        self._ctx = ctx
         self.lock = threading.Lock()
         self._pending: Pending = {}
-        self._roster = roster
-        self._tasks = tasks   # joints with a task in progress take no goals
-        self._port = port
-        self._clock = clock
-        self._warn = warn
-        self._warn_throttled = Throttle(warn, clock=clock)
+        self._roster = ctx.roster
+        self._tasks = ctx.tasks   # joints with a task in progress take no goals
+        self._port = ctx.port
+        self._clock = ctx.clock
+        self._warn = ctx.log.warn
+        self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
 
     def check(self, kind: str, names: Sequence[str],
               values: Sequence[float]) -> Tuple[Optional[List[Goal]], str]:
@@ -109,7 +107,7 @@ class Goals:
 
     def check_timeout(self) -> None:
         """Velocity, current and pwm goals fall back to zero after command_timeout."""
-        timeout = self.config.command_timeout
+        timeout = self._ctx.config.command_timeout
         if timeout <= 0.0:
             return
         now = self._clock()
@@ -135,18 +133,20 @@ class Goals:
         """Return True when goals (or what is left of them) wait to be written."""
         return bool(self._pending)
 
-    def take_locked(self) -> Pending:
+    def take(self, pack: Callable[[Pending], T]) -> T:
         """
-        Hand the queued goals to their writer (who holds the lock); the queue starts empty.
+        Hand the queued goals to pack() under the queue's lock and return what it makes of them.
 
-        The servos' goal_raw take the values now: the writer sends them in this cycle.
+        The queue starts empty; the servos' goal_raw take the values now (the writer sends
+        them in this cycle), so pack sees every goal a slot repeats at its latest value.
         """
-        pending, self._pending = self._pending, {}
-        by_id = self._roster.by_id
-        for register, goals in pending.items():
-            for servo_id, value in goals.items():
-                by_id[servo_id].goal_raw[register] = value
-        return pending
+        with self.lock:
+            pending, self._pending = self._pending, {}
+            by_id = self._roster.by_id
+            for register, goals in pending.items():
+                for servo_id, value in goals.items():
+                    by_id[servo_id].goal_raw[register] = value
+            return pack(pending)
 
     def note_written(self, servo: Servo, register: str, value: int) -> None:
         """Record a goal register written outside the queue (write_register): slots repeat it."""

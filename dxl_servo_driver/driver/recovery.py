@@ -8,20 +8,15 @@ failed restore is tried again until it works. A lost port stops the cycle's bus 
 stays up) until the adapter comes back; every servo then rejoins on its own.
 """
 
-from typing import Any, Callable, List, Optional
+from typing import List, Optional
 
-from dxl_servo_driver.bus import Bus
-from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
-from dxl_servo_driver.driver.link import Link
-from dxl_servo_driver.driver.servo import (
-    IDX_CANARY, IDX_HW_ERROR, Log, ManagerError, PortState, Roster, Servo, Throttle)
+from dxl_servo_driver.driver.servo import IDX_CANARY, IDX_HW_ERROR, Servo, Throttle
 from dxl_servo_driver.driver.setup import Setup
-from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
-from dxl_servo_driver.serial_port import RawPort
-from dxl_servo_driver.tasks import Steps, Task, TaskRunner
-from dxl_servo_driver.transports import PortFactory
+from dxl_servo_driver.errors import CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.tasks import Steps, Task
 
 BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
 BOOT_POLL_S = 0.02        # between two pings of a booting servo
@@ -32,21 +27,19 @@ REJOIN_INTERVAL_S = 1.0   # a servo missing after the adapter came back is probe
 class Recovery:
     """The restore, reboot and rejoin tasks, and what their outcome means."""
 
-    def __init__(self, config: DriverConfig, roster: Roster, link: Link, setup: Setup,
-                 goals: Goals, cycle: Cycle, tasks: TaskRunner, port: PortState,
-                 clock: Callable[[], float], info: Log, warn: Log) -> None:
-        self.config = config
-        self._roster = roster
-        self._link = link
+    def __init__(self, ctx: Context, setup: Setup, goals: Goals, cycle: Cycle) -> None:
+        self._ctx = ctx
+        self._roster = ctx.roster
+        self._link = ctx.link
         self._setup = setup
         self._goals = goals
         self._cycle = cycle
-        self._tasks = tasks
-        self._port = port
-        self._clock = clock
-        self._info = info
-        self._warn = warn
-        self._warn_throttled = Throttle(warn, clock=clock)
+        self._tasks = ctx.tasks
+        self._port = ctx.port
+        self._clock = ctx.clock
+        self._info = ctx.log.info
+        self._warn = ctx.log.warn
+        self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
         self.recoveries = 0
 
     # the steps ------------------------------------------------------------------------------
@@ -138,6 +131,13 @@ class Recovery:
         self._cycle.refresh()
         return task
 
+    def ended(self, task: Task, error: Optional[Exception]) -> None:
+        """Take a task that ended: done, or failed (a lost port propagates to the cycle)."""
+        if error is None:
+            self.task_done(task)
+        else:
+            self.task_failed(task, error)
+
     def task_done(self, task: Task) -> None:
         """Take a servo that finished its task back into the cycle."""
         servo = self._roster.by_name[task.joint]
@@ -172,7 +172,7 @@ class Recovery:
 
     def recover_hardware_errors(self) -> None:
         """With hardware_error_recovery: reboot a faulty servo alone, rate-limited, restored."""
-        if not self.config.hardware_error_recovery:
+        if not self._ctx.config.hardware_error_recovery:
             return
         now = self._clock()
         for servo in self._roster.active():
@@ -180,7 +180,7 @@ class Recovery:
             if (not servo.health_time or state is None or not state[IDX_HW_ERROR]
                     or servo.name in self._tasks):
                 continue
-            if now - servo.last_recovery_s < self.config.recovery_interval:
+            if now - servo.last_recovery_s < self._ctx.config.recovery_interval:
                 continue
             servo.last_recovery_s = now
             servo.recoveries += 1
@@ -210,88 +210,3 @@ class Recovery:
         if servo.name not in self._tasks and not self._port.lost:
             self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()),
                        self._clock() + RETRY_BACKOFF_S)
-
-
-class PortWatch:
-    """The port: opened at configure, watched for loss, reopened when the device returns."""
-
-    def __init__(self, config: DriverConfig, factory: PortFactory, state: PortState,
-                 roster: Roster, link: Link, goals: Goals, cycle: Cycle, tasks: TaskRunner,
-                 recovery: Recovery, clock: Callable[[], float], info: Log,
-                 error: Log) -> None:
-        self.config = config
-        self.factory = factory
-        self.port: Optional[RawPort] = None
-        self.sim_bus: Any = None   # the SimBus behind `port: sim`
-        self.reconnect_interval_s = 1.0
-        self._next_reconnect_s = 0.0
-        self._state = state
-        self._roster = roster
-        self._link = link
-        self._goals = goals
-        self._cycle = cycle
-        self._tasks = tasks
-        self._recovery = recovery
-        self._clock = clock
-        self._info = info
-        self._error = error
-
-    def connect(self) -> None:
-        """Open the port and the bus on it; ManagerError when the port cannot be opened."""
-        try:
-            self.port, self.sim_bus = self.factory(self.config)
-        except PortError as exc:
-            raise ManagerError(str(exc)) from None
-        self._link.bus = Bus(self.port, self.config.baud_rate,
-                             latency_timer_s=self.config.latency_timer / 1000.0)
-        self._state.lost = False
-
-    def lose(self, exc: PortError) -> None:
-        """Take the port as gone: goals and tasks dropped, nothing fresh, reconnection due."""
-        if self._state.lost:
-            return
-        self._state.lost = True
-        self._state.error = str(exc)
-        self._goals.clear()
-        self._tasks.cancel_all('the port was lost')
-        for servo in self._roster.order:
-            servo.fresh = False
-            servo.status = ''
-        self._cycle.refresh()
-        self._error(f'{self.config.port}: {exc}. The node stays up and reconnects when the '
-                    'device returns; pending goals were dropped.')
-        if self.sim_bus is None and self._link.bus is not None:
-            self._link.bus.close()
-        self._next_reconnect_s = self._clock() + self.reconnect_interval_s
-
-    def reconnect(self) -> bool:
-        """
-        Try to get the port back; True when it is.
-
-        Every servo then rejoins on its own (a task each): one that kept its power goes on
-        holding what it held, one that lost it is restored to hold where it is, and one that
-        does not answer is probed every second without holding up the others.
-        """
-        now = self._clock()
-        if now < self._next_reconnect_s:
-            return False
-        self._next_reconnect_s = now + self.reconnect_interval_s
-        bus = self._link.io()
-        try:
-            if self.sim_bus is None:
-                # A real adapter comes back as a new device: open it again.
-                self.port, _ = self.factory(self.config)
-                bus.port = self.port
-            else:
-                bus.port.in_waiting   # raises while the simulated adapter is unplugged
-        except (PortError, CommError, OSError):
-            return False
-        self._state.lost = False
-        self._state.error = ''
-        self._cycle.want_full()
-        bus.mark_dirty()
-        for servo in self._roster.active():
-            self._recovery.start(servo, 'rejoin', self._recovery.rejoin(servo))
-        self._info(f'{self.config.port}: port back; checking {len(self._roster.active())} '
-                   'servos')
-        return True

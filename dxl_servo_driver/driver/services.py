@@ -6,37 +6,36 @@ reason and writes nothing when the request cannot be done as it stands, and answ
 transaction with a message rather than an exception; a lost port is handled on the way.
 """
 
-import threading
 from typing import Callable, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import models
 from dxl_servo_driver import registers
+from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
-from dxl_servo_driver.driver.link import Link
-from dxl_servo_driver.driver.recovery import PortWatch, Recovery
-from dxl_servo_driver.driver.servo import PortState, Result, Roster, run, Servo
+from dxl_servo_driver.driver.port_watch import PortWatch
+from dxl_servo_driver.driver.recovery import Recovery
+from dxl_servo_driver.driver.servo import Result, run, Servo
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, Interrupted, PortError
 from dxl_servo_driver.models import modes
-from dxl_servo_driver.tasks import Task, TaskRunner
+from dxl_servo_driver.tasks import Task
 
 
 class Services:
     """Requests on named joints, serialised with the cycle by the manager's lock."""
 
-    def __init__(self, lock: threading.RLock, roster: Roster, link: Link, setup: Setup,
-                 goals: Goals, cycle: Cycle, recovery: Recovery, tasks: TaskRunner,
-                 port: PortState, ports: PortWatch) -> None:
-        self._lock = lock
-        self._roster = roster
-        self._link = link
+    def __init__(self, ctx: Context, setup: Setup, goals: Goals, cycle: Cycle,
+                 recovery: Recovery, ports: PortWatch) -> None:
+        self._lock = ctx.lock
+        self._roster = ctx.roster
+        self._link = ctx.link
         self._setup = setup
         self._goals = goals
         self._cycle = cycle
         self._recovery = recovery
-        self._tasks = tasks
-        self._port = port
+        self._tasks = ctx.tasks
+        self._port = ctx.port
         self._ports = ports
 
     def command_now(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:

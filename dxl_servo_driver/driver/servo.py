@@ -49,7 +49,7 @@ class Servo:
     joint: JointConfig
     mode: str
     # The table, units and state block of the model it answered with at configure (before:
-    # the configured model, or the seed's).
+    # the configured model, or the XM430 manual's).
     model: models.Model
     units: Units
     block: StateBlock
@@ -110,7 +110,7 @@ class Servo:
 
     @classmethod
     def of(cls, joint: JointConfig) -> 'Servo':
-        """Return the servo of a joint, with the configured model's table (or the seed's)."""
+        """Return the servo of a joint, with its configured model's table (or the manual's)."""
         table = joint.model or models.model_for(xm430.MODEL_NUMBER)
         units = units_for(table, joint.torque_constant_nm_per_a)
         return cls(joint, joint.operating_mode, table, units,

@@ -9,14 +9,13 @@ Present Position are kept in the joint's turn offset. The long activities are st
 (generators, one transaction between two yields) that tasks.py or a synchronous caller runs.
 """
 
-from typing import Any, Callable, Dict, Generator, List, Optional
+from typing import Any, Dict, Generator, List, Optional
 
 from dxl_servo_driver import models
 from dxl_servo_driver import state_block
-from dxl_servo_driver.config import check_joint_against, DriverConfig
-from dxl_servo_driver.driver.link import Link
-from dxl_servo_driver.driver.servo import (
-    clamp_position, Log, ManagerError, Roster, run, Servo)
+from dxl_servo_driver.config import check_joint_against
+from dxl_servo_driver.driver.context import Context
+from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Servo
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
@@ -30,14 +29,13 @@ LIMIT_REGISTERS = ('min_position_limit', 'max_position_limit', 'velocity_limit',
 class Setup:
     """Configuration, activation and mode switches of the servos, over the link."""
 
-    def __init__(self, config: DriverConfig, roster: Roster, link: Link,
-                 clock: Callable[[], float], info: Log, warn: Log) -> None:
-        self.config = config
-        self._roster = roster
-        self._link = link
-        self._clock = clock
-        self._info = info
-        self._warn = warn
+    def __init__(self, ctx: Context) -> None:
+        self._ctx = ctx
+        self._roster = ctx.roster
+        self._link = ctx.link
+        self._clock = ctx.clock
+        self._info = ctx.log.info
+        self._warn = ctx.log.warn
 
     # configure ------------------------------------------------------------------------------
     def configure(self) -> None:
@@ -66,11 +64,12 @@ class Setup:
             self._info(f'found joint {servo.name!r}: id {servo.servo_id}, {servo.model.name} '
                        f'(model {model_number}), firmware {servo.firmware_version}, '
                        f'mode {servo.mode}')
+        config = self._ctx.config
         for servo, failure in missing:
             message = (f'joint {servo.name!r}: servo id {servo.servo_id} did not answer '
-                       f'{self.config.ping_retries} pings at {self.config.baud_rate} bps '
+                       f'{config.ping_retries} pings at {config.baud_rate} bps '
                        f'({failure}); check the id, the baud rate, the power and the cable')
-            if self.config.missing_servo == 'refuse':
+            if config.missing_servo == 'refuse':
                 raise ManagerError(message)
             self._warn(message + '; starting without it (missing_servo: skip)')
         if not self._roster.active():
@@ -88,7 +87,7 @@ class Setup:
             raise ManagerError(f'{where} is a {other.name} (model {model_number}), but the '
                                f'configuration says {servo.joint.name}.model {wanted.name}; '
                                'refusing to drive it with another control table')
-        # The firmware picks the table where it differs (X330): read it from the seed's
+        # The firmware picks the table where it differs (X330): read it from the XM430 manual's
         # address, which every X-series table shares.
         servo.model_number = model_number
         servo.set_model(models.model_for(model_number))
@@ -139,7 +138,7 @@ class Setup:
 
     def _slot_for(self, servo: Servo, mode: str) -> Optional[state_block.GoalSlot]:
         """Return the goal slot the servo's goals go through in a mode (None: per register)."""
-        if self.config.write_mode != 'indirect' or servo.slot_refused:
+        if self._ctx.config.write_mode != 'indirect' or servo.slot_refused:
             return None
         return state_block.goal_slot(servo.model, servo.block, mode)
 
@@ -151,7 +150,7 @@ class Setup:
     def activate(self, servos: List[Servo]) -> None:
         """Goal = present for every servo, then torque on (if torque_on_start)."""
         for servo in servos:
-            servo.torque_wanted = self.config.torque_on_start
+            servo.torque_wanted = self._ctx.config.torque_on_start
             try:
                 run(self.hold(servo))
             except (PortError, CommError) as exc:
@@ -161,11 +160,11 @@ class Setup:
         """
         Make the servo hold where it is (per mode), then set torque as wanted.
 
-        Torque on re-initialises Present Position within one turn (the seed), so in the position
-        modes the goal written first must be in that frame: the servo is brought there before
-        (CLEAR, or the seed's formula when it cannot clear), and the whole turns it loses are
-        kept in the joint's turn offset. After torque on the position is read again, and a
-        frame change nobody predicted is caught at once.
+        Torque on re-initialises Present Position within one turn (the XM430 manual), so in the
+        position modes the goal written first must be in that frame: the servo is brought there
+        first (CLEAR, or the manual's formula when it cannot clear), and the whole turns it
+        loses are kept in the joint's turn offset. After torque on the position is read again,
+        and a frame change nobody predicted is caught at once.
         """
         link = self._link
         torque = link.read(servo, 'torque_enable')
@@ -259,7 +258,7 @@ class Setup:
             yield
         except StatusError:
             # CLEAR refused (the horn is moving, or an older firmware): torque on will do the
-            # same re-initialisation, by the seed's formula.
+            # same re-initialisation, by the manual's formula.
             after = servo.units.reinit_position(present, homing)
         keep_turns(servo, present, after)
         return after
@@ -283,14 +282,14 @@ class Setup:
         servo.goal_slot = slot
         after = link.read(servo, 'present_position')
         yield
-        # A mode change re-initialises Present Position within one turn (the seed).
+        # A mode change re-initialises Present Position within one turn (the XM430 manual).
         if mode == 'position':
             servo.turn_offset = 0
             yield from self._single_turn_homing(servo)
         else:
             keep_turns(servo, before, after)
-        # The seed (Operating Mode note 1): profiles, goal PWM/current and gains were reset by
-        # the mode change; give back what the configuration set.
+        # The XM430 manual (Operating Mode, note 1): profiles, goal PWM/current and gains were
+        # reset by the mode change; give back what the configuration set.
         for name, value in servo.joint.registers:
             if name in modes.RESET_BY_MODE_CHANGE:
                 link.write_verified(servo, name, value)
@@ -298,8 +297,8 @@ class Setup:
         yield from self.hold(servo)
 
     def _single_turn_homing(self, servo: Servo) -> Steps:
-        # Position mode ignores a homing offset beyond +-1024 (the seed): one left over from
-        # another mode is put back to the configured one.
+        # Position mode ignores a homing offset beyond +-1024 (the XM430 manual): one left over
+        # from another mode is put back to the configured one.
         offset = self._link.read(servo, 'homing_offset')
         yield
         if abs(offset) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT:

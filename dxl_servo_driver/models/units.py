@@ -59,7 +59,7 @@ class Units:
         """
         Return Present Position after the servo re-initialises it (torque on, mode change).
 
-        The seed: it becomes the position within one turn plus the Homing Offset.
+        The XM430 manual: it becomes the position within one turn plus the Homing Offset.
         """
         return (present_raw - homing_offset) % self.pulses_per_rev + homing_offset
 

@@ -10,6 +10,8 @@ from dxl_servo_driver.models.base import Item
 from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, item
 
 MODEL_NUMBER = 1030
+# The models whose table is the manual's (the XM430-W350 and -W210), plus what the e-manual adds.
+MODEL_NUMBERS = (1020, MODEL_NUMBER)
 # The manual gives '-' for the firmware version; the simulator reports this value.
 FIRMWARE_VERSION = 45
 TABLE_SIZE = 662
@@ -33,6 +35,9 @@ HARDWARE_ERROR_BITS: dict[int, str] = {
 }
 
 # Indirect Address/Data 1..28 and 29..56: two banks.
+# The Realtime Tick counts milliseconds 0..32767, then wraps.
+TICK_PERIOD_MS = 32768
+
 INDIRECT_PAIRS: tuple[tuple[int, int], ...] = indirect_pairs((168, 224, 28), (578, 634, 28))
 
 

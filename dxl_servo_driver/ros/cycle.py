@@ -259,4 +259,4 @@ class CycleRunner:
         self._host.get_logger().info(
             f'measured loop rate {self.rate.rate_hz:.1f} Hz (requested '
             f'{1.0 / self.period_s:g} Hz, bus limit {budget.rate_limit_hz:.0f} Hz); '
-            f'{manager.read_failures} read failures, {manager.retries} retries')
+            f'{manager.stats.read_failures} read failures, {manager.stats.retries} retries')

@@ -78,6 +78,7 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         status.message = (f'{measured:.0f} Hz, below the requested {requested:g} Hz '
                           f'(bus limit {budget.rate_limit_hz:.0f} Hz)')
     counters = bus.counters if bus is not None else None
+    stats = manager.stats
     status.values = _values({
         'port': config.port, 'baud_rate': config.baud_rate,
         'lifecycle_state': state,
@@ -86,19 +87,19 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         'bus_limit_hz': f'{budget.rate_limit_hz:.0f}',
         'read_mode': manager.read_mode_in_use,
         'goal_slots': manager.goal_slots_in_use,
-        'cycles': manager.cycles, 'cycle_errors': facts.cycle_errors,
+        'cycles': stats.cycles, 'cycle_errors': facts.cycle_errors,
         'cycle_threads': facts.threads,
-        'read_failures': manager.read_failures,
+        'read_failures': stats.read_failures,
         'timeouts': counters.timeouts if counters else 0,
         'corrupt_replies': counters.corrupt if counters else 0,
         'status_errors': counters.status_errors if counters else 0,
         'discarded_replies': counters.stale if counters else 0,
-        'stale_samples_refused': manager.stale_refused,
+        'stale_samples_refused': stats.stale_refused,
         'flushed_bytes': counters.flushed_bytes if counters else 0,
         'deadline_waits': counters.deadline_waits if counters else 0,
         'adapter_echo': bus.echo if bus is not None else False,
-        'retries': manager.retries, 'retry_successes': manager.retry_successes,
-        'recoveries': manager.recoveries, 'port_lost': manager.port_lost,
+        'retries': stats.retries, 'retry_successes': stats.retry_successes,
+        'recoveries': stats.recoveries, 'port_lost': manager.port_lost,
     })
     return status
 

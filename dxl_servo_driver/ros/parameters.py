@@ -10,31 +10,28 @@ cleanup), and the next configure uses them; while configured they are refused wi
 from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver.models import modes
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-# Parameters that may change while the node runs; the others are read at configure.
-RUNTIME_PARAMS = ('loop_rate', 'state_rate', 'command_timeout', 'goal_tolerance',
-                  'temperature_warn', 'temperature_error', 'voltage_low', 'voltage_high')
-THRESHOLDS = RUNTIME_PARAMS[4:]
-RESTART_PARAMS = ('joints',)
 _PARAM_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
                 float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
                 list: ParameterType.PARAMETER_STRING_ARRAY}
+AT_CONFIGURE = ' Read at configure (settable while unconfigured).'
 
 
-def descriptor(spec: cfg.ParamSpec, read_only: bool) -> ParameterDescriptor:
-    """Return the descriptor `ros2 param describe` shows for a top-level parameter."""
+def descriptor(spec: cfg.ParamSpec) -> ParameterDescriptor:
+    """Return the descriptor `ros2 param describe` shows for a parameter of the table."""
     text = spec.description + (f' [{spec.unit}]' if spec.unit else '')
-    if spec.name not in RUNTIME_PARAMS and not read_only:
-        text += ' Read at configure (settable while unconfigured).'
+    if spec.restart:
+        text += ' Fixed until a restart.'
+    elif not spec.runtime:
+        text += AT_CONFIGURE
     if spec.choices:
         text += f' One of: {", ".join(str(c) for c in spec.choices)}.'
     result = ParameterDescriptor(description=text, type=_PARAM_TYPES[spec.kind],
-                                 read_only=read_only)
+                                 read_only=spec.restart)
     if spec.choices:
         result.additional_constraints = f'one of {list(spec.choices)}'
     if spec.minimum is not None and spec.maximum is not None:
@@ -54,49 +51,45 @@ def _redeclare(node: Node, name: str, value: Any, desc: ParameterDescriptor) -> 
 
 
 def declare(node: Node, config: cfg.DriverConfig) -> None:
-    """Re-declare every parameter with its description and range (ros2 param describe)."""
+    """
+    Re-declare every parameter with its value, description and range (ros2 param describe).
+
+    A value the configuration leaves to the servo (the torque constant of the model it answers
+    with) is declared once it is known (show_from_servos).
+    """
     for spec in cfg.PARAMS:
         value = getattr(config, spec.name) if spec.name != 'joints' else [
             joint.name for joint in config.joints]
-        _redeclare(node, spec.name, value, descriptor(spec, spec.name in RESTART_PARAMS))
+        _redeclare(node, spec.name, value, descriptor(spec))
     for joint in config.joints:
-        entries = [
-            ('id', joint.servo_id, "Dynamixel id of the joint's servo (0..252).",
-             ParameterType.PARAMETER_INTEGER),
-            ('operating_mode', joint.operating_mode,
-             f'Operating mode at start: one of {", ".join(modes.NAMES)}.',
-             ParameterType.PARAMETER_STRING),
-        ]
-        if joint.torque_constant_nm_per_a is not None:
-            entries.append(
-                ('torque_constant', joint.torque_constant_nm_per_a,
-                 "Effort = current x this [N*m/A]; unset: the model's datasheet stall "
-                 'torque / stall current (seed: 4.1 N*m at 2.3 A).',
-                 ParameterType.PARAMETER_DOUBLE))
-        if joint.gripper:
-            entries += [
-                ('gripper', True, 'A gripper: ~/gripper commands, grasp detection.',
-                 ParameterType.PARAMETER_BOOL),
-                ('gripper_open', joint.gripper_open, 'Position of ratio 0 (open), rad.',
-                 ParameterType.PARAMETER_DOUBLE),
-                ('gripper_closed', joint.gripper_closed, 'Position of ratio 1 (closed), rad.',
-                 ParameterType.PARAMETER_DOUBLE)]
-        if joint.model is not None:
-            entries.append(
-                ('model', joint.model.name,
-                 'The model the servo must be (name or number); another is refused.',
-                 ParameterType.PARAMETER_STRING))
+        values = _joint_values(joint)
+        for spec in cfg.JOINT_PARAMS:
+            if spec.only_for and not values.get(spec.only_for):
+                continue
+            value = values[spec.name]
+            if value is not None:   # else a value only the servo gives: declared once known
+                _redeclare(node, f'{joint.name}.{spec.name}', value, descriptor(spec))
         for register, value in joint.registers:
             item = cfg.describe_register(joint, register)
-            entries.append((f'registers.{register}', value,
-                            f'{item.description} at address {item.address}, raw '
+            _redeclare(node, f'{joint.name}.registers.{register}', value, ParameterDescriptor(
+                description=f'{item.description} at address {item.address}, raw '
                             f'[{item.unit or "count"}], {item.minimum}..{item.maximum}, '
-                            f'{item.area.upper()}; applied at configure.',
-                            ParameterType.PARAMETER_INTEGER))
-        for key, value, text, kind in entries:
-            _redeclare(node, f'{joint.name}.{key}', value, ParameterDescriptor(
-                description=text + ' Read at configure (settable while unconfigured).',
-                type=kind))
+                            f'{item.area.upper()}; applied at configure.' + AT_CONFIGURE,
+                type=ParameterType.PARAMETER_INTEGER))
+
+
+def show_from_servos(node: Node, values: Mapping[str, Any]) -> None:
+    """Declare the values in use that the configuration left to the servos (by full name)."""
+    for name, value in values.items():
+        _redeclare(node, name, value, descriptor(cfg.JOINT_PARAMS_BY_NAME[name.split('.')[-1]]))
+
+
+def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
+    """Return a joint's configured value of each JOINT_PARAMS key (None: left to the servo)."""
+    return {'id': joint.servo_id, 'operating_mode': joint.operating_mode,
+            'model': joint.model.name if joint.model is not None else '',
+            'torque_constant': joint.torque_constant_nm_per_a, 'gripper': joint.gripper,
+            'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed}
 
 
 def coerce(params: List[Parameter]) -> List[Parameter]:
@@ -122,14 +115,14 @@ def check_changes(params: List[Parameter], lifecycle_state: str,
     """
     changes: Dict[str, Any] = {}
     for param in params:
-        if param.name in RESTART_PARAMS:
+        spec = cfg.PARAMS_BY_NAME.get(param.name)
+        if spec is not None and spec.restart:
             return f'{param.name} cannot be changed while the node runs (restart it)', {}
-        if param.name not in RUNTIME_PARAMS:
+        if spec is None or not spec.runtime:
             if lifecycle_state == 'unconfigured':
                 continue
             return (f'{param.name} is read at configure: change it while the node is '
                     f'unconfigured (it is {lifecycle_state}; cleanup first), or restart it'), {}
-        spec = cfg.PARAMS_BY_NAME[param.name]
         try:
             changes[param.name] = cfg.check_spec(spec, param.value)
         except cfg.ConfigError as exc:
