@@ -26,7 +26,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'node = dxl_servo_driver.node:main',
+            'node = dxl_servo_driver.ros.main:main',
             'scan = dxl_servo_driver.scan:main',
             'virtual_bus = dxl_servo_driver.sim.virtual_bus:main',
         ],

@@ -8,12 +8,13 @@ mode. No bus, no ROS.
 import math
 from typing import Dict, List, Mapping, Sequence, Tuple
 
+from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.models.modes import BY_NAME as MODES
 
 __all__ = ['JointStateCommandError', 'split_joint_state']
 
 
-class JointStateCommandError(ValueError):
+class JointStateCommandError(BadRequest):
     """A joint-state command refused whole; the message says why."""
 
 

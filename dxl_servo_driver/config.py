@@ -358,10 +358,7 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
                         gripper, ends[0], ends[1])
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
-    problem = _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER),
-                               lenient=wanted is None)
-    if problem is not None:
-        raise ConfigError(*problem)
+    _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
     return joint
 
 
@@ -377,10 +374,9 @@ def _model(key: str, value: Any) -> models.Model:
         raise ConfigError(key, str(exc)) from None
 
 
-def _check_registers(joint: JointConfig, table: models.Model,
-                     lenient: bool = False) -> Optional[Tuple[str, str]]:
+def _check_registers(joint: JointConfig, table: models.Model, lenient: bool = False) -> None:
     """
-    Return (key, reason) for the first register of the joint the model refuses, else None.
+    Refuse (ConfigError) the first register of the joint the model refuses.
 
     lenient: a register this table lacks passes if another supported model has it.
     """
@@ -395,7 +391,7 @@ def _check_registers(joint: JointConfig, table: models.Model,
             item = registers.writable_register(table, register)
             registers.check_range(item, value)
         except ValueError as exc:
-            return key, str(exc)
+            raise ConfigError(key, str(exc)) from None
         checked[register] = value
     # Values bounded by another register must respect it, as the servo would refuse them (data
     # limit error) at configure: the rules of registers.check_register_set, against the file's
@@ -406,8 +402,7 @@ def _check_registers(joint: JointConfig, table: models.Model,
         try:
             registers.check_register_set(values, register, checked[register], joint.operating_mode)
         except ValueError as exc:
-            return f'{joint.name}.registers.{register}', str(exc)
-    return None
+            raise ConfigError(f'{joint.name}.registers.{register}', str(exc)) from None
 
 
 def describe_register(joint: JointConfig, register: str) -> models.Item:
@@ -418,15 +413,12 @@ def describe_register(joint: JointConfig, register: str) -> models.Item:
     raise KeyError(register)
 
 
-def check_joint_against(joint: JointConfig, table: models.Model) -> str:
-    """Return why a joint's configuration does not fit the model its servo is ('' if it does)."""
+def check_joint_against(joint: JointConfig, table: models.Model) -> None:
+    """Refuse (ConfigurationError) a joint's configuration that does not fit its servo's model."""
     if joint.operating_mode not in table.modes:
-        return (f'it has no {joint.operating_mode} mode ({joint.name}.operating_mode; its '
-                f'modes: {", ".join(table.modes)})')
-    problem = _check_registers(joint, table)
-    if problem is not None:
-        return f'parameter {problem[0]!r}: {problem[1]}'
-    return ''
+        raise ConfigurationError(f'it has no {joint.operating_mode} mode ({joint.name}.'
+                                 f'operating_mode; its modes: {", ".join(table.modes)})')
+    _check_registers(joint, table)
 
 
 def replace(config: DriverConfig, **changes: Any) -> DriverConfig:

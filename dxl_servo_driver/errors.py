@@ -1,5 +1,12 @@
 """
-The one exception family of the driver.
+The one exception family of the driver, and where exceptions stop.
+
+Two conventions, each in its place. Below the point where a request is answered, a failure is an
+exception of this family. The manager's request methods (commands, services) and the node's arm
+(trajectories, joint-state and gripper commands) answer with a driver.servo.Result (success, a
+message for a person, a value), which is what topics log and services return: no exception
+reaches a ROS callback. (A few functions exist to describe something for a log line, such as
+what a torque-off missed; their text is a report, not an error.)
 
 Every error the package raises is a DriverError, carrying the servo id (None when no single
 servo is concerned) and the servo's status error code (None when it did not answer with one).
@@ -12,6 +19,8 @@ The siblings say what the caller can do about it:
 - ConfigurationError: a configuration (file, parameter, the servo found at configure) the
   driver refuses; nothing was written.
 - Refused: a request refused as it stands (wrong state, stop requested); try again later.
+  BadRequest: refused for what it says (an unknown joint, a NaN, arrays of other lengths):
+  nothing was done, and sending it again changes nothing.
 """
 
 from typing import Optional
@@ -57,6 +66,10 @@ class ConfigurationError(DriverError, ValueError):
 
 class Refused(DriverError):
     """A request or transition refused as things stand (a servo refused at configure, ...)."""
+
+
+class BadRequest(Refused, ValueError):
+    """A request refused for what it says; nothing was done (a ValueError too: bad input)."""
 
 
 class Interrupted(Refused):

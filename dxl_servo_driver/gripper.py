@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import math
 from typing import Optional, Tuple
 
+from dxl_servo_driver.errors import BadRequest
+
 __all__ = ['GraspDetector', 'GripperError', 'GripperSpec', 'gripper_goal']
 
 # Stalled: slower than this ...
@@ -22,7 +24,7 @@ SHORT_OF_GOAL_RAD = 0.05
 AT_LIMIT = 0.7
 
 
-class GripperError(ValueError):
+class GripperError(BadRequest):
     """A gripper command refused; the message says why."""
 
 

@@ -25,7 +25,7 @@ from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.context import Context, Logs, Stats
 from dxl_servo_driver.driver.cycle import Cycle
-from dxl_servo_driver.driver.goals import Goal, Goals
+from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.link import Link
 from dxl_servo_driver.driver.port_watch import PortWatch
 from dxl_servo_driver.driver.recovery import Recovery
@@ -35,7 +35,7 @@ from dxl_servo_driver.driver.servo import (
     IDX_PWM, IDX_TEMPERATURE, IDX_TICK, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Log,
     ManagerError, PortState, Result, Roster, Servo, StaleGuard)
 from dxl_servo_driver.driver.setup import Setup
-from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.errors import CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.tasks import Task, TaskRunner
@@ -322,10 +322,12 @@ class Manager:
             self._recovery.recover_hardware_errors()
 
     # commands and services ----------------------------------------------------------------
-    def check_goals(self, kind: str, names: Sequence[str],
-                    values: Sequence[float]) -> Tuple[Optional[List[Goal]], str]:
-        """Validate and convert goals: (goals, '') or (None, reason); nothing is queued."""
-        return self._goals.check(kind, names, values)
+    def check_goals(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
+        """Validate and convert goals (Result.value: the goals); nothing is queued."""
+        try:
+            return Result(True, '', self._goals.check(kind, names, values))
+        except Refused as exc:
+            return Result(False, str(exc))
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Queue goals (topic path): written by the next cycle's sync write."""
@@ -348,8 +350,8 @@ class Manager:
         """Reboot and restore; wait(tasks) blocks until the cycle ran them (else run here)."""
         return self._services.reboot(names, wait)
 
-    def read_register(self, name: str, register: str) -> Tuple[Optional[int], str]:
-        """Read one register by snake_case name or decimal address: (value, message)."""
+    def read_register(self, name: str, register: str) -> Result:
+        """Read one register by snake_case name or decimal address (Result.value: the value)."""
         return self._services.read_register(name, register)
 
     def write_register(self, name: str, register: str, value: int) -> Result:

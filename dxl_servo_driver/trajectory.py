@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
+from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.models import modes
 
 __all__ = ['Executor', 'Limits', 'Outcome', 'Point', 'Trajectory', 'TrajectoryError',
@@ -22,7 +23,7 @@ __all__ = ['Executor', 'Limits', 'Outcome', 'Point', 'Trajectory', 'TrajectoryEr
 SETTLE_S = 0.5
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(BadRequest):
     """A trajectory refused whole; the message says why."""
 
 

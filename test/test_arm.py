@@ -7,7 +7,7 @@ simulator's own registers and the published joint_states.
 
 import math
 import time
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Sequence, Tuple
 
 from builtin_interfaces.msg import Duration
 from dxl_servo_driver.models import model_for
@@ -124,10 +124,10 @@ def test_a_bad_trajectory_is_refused_whole(h: NodeHarness, case: str) -> None:
     assert h.node is not None
     time.sleep(0.1)
     before = {name: h.reg(IDS[name], 'goal_position') for name in ARM}
-    accepted = h.node._trajectories.accepted
-    reply = h.node.submit_trajectory(trajectory(joints, plan))
-    assert reason in reply, reply
-    assert h.node._trajectories.accepted == accepted
+    accepted = h.node.arm.trajectories.accepted
+    reply = h.node.arm.submit_trajectory(trajectory(joints, plan))
+    assert not reply.success and reason in reply.message, reply
+    assert h.node.arm.trajectories.accepted == accepted
     time.sleep(0.1)
     assert {name: h.reg(IDS[name], 'goal_position') for name in ARM} == before
 
@@ -173,7 +173,7 @@ def test_joint_command_applies_each_array_by_mode(h: NodeHarness) -> None:
     h.wait_reg(IDS['wrist'], 'goal_current', lambda v: v == SEED.current_from_a(0.4 / kt))
     h.wait_reg(IDS['wrist'], 'goal_position', lambda v: v == SEED.position_from_rad(-0.2))
     # Empty arrays are not given at all.
-    assert h.node.joint_command(joint_state(['shoulder'], positions=[0.1])) == ''
+    assert h.node.arm.joint_command(joint_state(['shoulder'], positions=[0.1])).success
 
 
 JOINT_COMMAND_REFUSALS = {
@@ -193,8 +193,8 @@ def test_a_bad_joint_command_is_refused_whole(h: NodeHarness, case: str) -> None
     time.sleep(0.1)   # goals queued by an earlier test are written by now
     before = {sid: (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_velocity'))
               for sid in IDS.values()}
-    reply: Optional[str] = h.node.joint_command(msg)
-    assert reply and reason in reply, reply
+    reply = h.node.arm.joint_command(msg)
+    assert not reply.success and reason in reply.message, reply
     time.sleep(0.05)
     assert {sid: (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_velocity'))
             for sid in IDS.values()} == before
@@ -256,7 +256,7 @@ def test_a_bad_gripper_command_is_refused(h: NodeHarness, case: str) -> None:
     msg, reason = GRIPPER_REFUSALS[case]
     time.sleep(0.1)
     before = (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current'))
-    reply = h.node.gripper_command(msg)
-    assert reason in reply, reply
+    reply = h.node.arm.gripper_command(msg)
+    assert not reply.success and reason in reply.message, reply
     time.sleep(0.05)
     assert (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current')) == before

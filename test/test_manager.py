@@ -327,11 +327,13 @@ def test_torque_service_and_eeprom_refusal(active: Tuple[Rig, Manager]) -> None:
     assert rig.reg(1, 'return_delay_time') == 5
     assert manager.set_torque([], True).success
     assert all(rig.reg(i, 'torque_enable') == 1 for i in (1, 2, 3))
-    value, message = manager.read_register('arm', 'return_delay_time')
+    result = manager.read_register('arm', 'return_delay_time')
+    value, message = result.value, result.message
     assert value == 5 and 'return_delay_time' in message
-    value, _ = manager.read_register('arm', '146')
+    value = manager.read_register('arm', '146').value
     assert value == rig.reg(1, 'present_temperature')
-    assert manager.read_register('arm', 'no_such_register')[0] is None
+    refused = manager.read_register('arm', 'no_such_register')
+    assert not refused.success and refused.value is None
     assert not manager.write_register('arm', 'present_position', 1).success
     assert not manager.write_register('arm', 'profile_velocity', -1).success
 

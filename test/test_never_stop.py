@@ -20,7 +20,7 @@ from adapter_faults import Faults
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
-from dxl_servo_driver.node import StartupFailure
+from dxl_servo_driver.ros.node import StartupFailure
 from lifecycle_msgs.msg import Transition
 from node_harness import faulty_harness, NodeHarness, sim_params, startup_failure
 import pytest

@@ -11,7 +11,7 @@ import shlex
 from typing import Any, Dict, List, Tuple
 
 from dxl_servo_driver.models import modes
-from dxl_servo_driver.node import NODE_NAME
+from dxl_servo_driver.ros.node import NODE_NAME
 from node_harness import NodeHarness
 import pytest
 import yaml
@@ -123,11 +123,12 @@ def replay(h: NodeHarness, words: List[str]) -> Tuple[str, Any]:
         raw = kind_.to_raw(msg.value[0]) - (servo.turn_offset if command == 'position' else 0)
         h.wait_reg(servo.servo_id, GOAL_REGISTERS[command], lambda v: v == raw, timeout_s=5.0)
         return 'topic', raw
-    # The arm topics: the node's handler of the topic answers '' when it takes the message.
-    handler = {'gripper': h.node.gripper_command, 'joint_command': h.node.joint_command,
-               'joint_trajectory': h.node.submit_trajectory}[name]
-    reason = handler(msg)
-    assert reason == '', (words, reason)
+    # The arm topics: the node's handler of the topic answers success when it takes it.
+    arm = h.node.arm
+    handler = {'gripper': arm.gripper_command, 'joint_command': arm.joint_command,
+               'joint_trajectory': arm.submit_trajectory}[name]
+    result = handler(msg)
+    assert result.success, (words, result.message)
     return 'topic', msg
 
 

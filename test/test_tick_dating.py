@@ -64,11 +64,11 @@ def test_service_reads_hold_while_the_tick_wraps() -> None:
     deadline = time.monotonic() + WRAP_IN_S + 10.0
     while not any(b < a for a, b in zip(ticks, ticks[1:])) or len(ticks) < 10:
         assert time.monotonic() < deadline, f'no wrap seen in {ticks[-5:]}'
-        tick, message = manager.read_register(servo.name, 'realtime_tick')
-        assert tick is not None, message
-        ticks.append(tick)
-        position, message = manager.read_register(servo.name, 'present_position')
-        assert position is not None, message
+        tick = manager.read_register(servo.name, 'realtime_tick')
+        assert tick.success, tick.message
+        ticks.append(tick.value)
+        position = manager.read_register(servo.name, 'present_position')
+        assert position.success, position.message
         cycle_read(manager, retry_until=time.monotonic() + 0.01)
         assert servo.fresh
         if ticks[-1] < TICK_PERIOD_MS - 50 and len(ticks) > 10 and ticks[-1] > 50:

@@ -14,10 +14,11 @@ are needed: the manager's lock, then this one.
 
 import math
 import threading
-from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
+from typing import Callable, Dict, List, Sequence, Tuple, TypeVar
 
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import clamp_position, Result, Servo, Throttle
+from dxl_servo_driver.errors import BadRequest, Refused
 from dxl_servo_driver.models import modes
 
 Goal = Tuple[Servo, str, int]   # the servo, its goal register, the raw value
@@ -39,48 +40,48 @@ class Goals:
         self._warn = ctx.log.warn
         self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
 
-    def check(self, kind: str, names: Sequence[str],
-              values: Sequence[float]) -> Tuple[Optional[List[Goal]], str]:
+    def check(self, kind: str, names: Sequence[str], values: Sequence[float]) -> List[Goal]:
         """
         Validate goals and convert them to raw register values, clamped to the servo's limits.
 
-        Returns (goals, '') or (None, reason); nothing is queued here.
+        Nothing is queued here: BadRequest for what the command says, Refused for what the
+        joint or the port is doing now.
         """
         if kind not in modes.COMMAND_KINDS:
-            return None, f'unknown command kind {kind!r}'
+            raise BadRequest(f'unknown command kind {kind!r}')
         if len(names) == 0:
-            return None, 'empty command: no joint names'
+            raise BadRequest('empty command: no joint names')
         if len(names) != len(values):
-            return None, (f'{len(names)} names but {len(values)} values: they must have the '
-                          'same length')
+            raise BadRequest(f'{len(names)} names but {len(values)} values: they must have '
+                             'the same length')
         if len(set(names)) != len(names):
-            return None, 'a joint is named twice'
+            raise BadRequest('a joint is named twice')
         if self._port.lost:
-            return None, f'the port is lost ({self._port.error}): no goal can be written'
+            raise Refused(f'the port is lost ({self._port.error}): no goal can be written')
         goals = []
         for name, value in zip(names, values):
             servo = self._roster.by_name.get(name)
             if servo is None:
-                return None, f'unknown joint {name!r}'
+                raise BadRequest(f'unknown joint {name!r}')
             if not servo.online:
-                return None, f'joint {name!r} is not on the bus (missing at configure)'
+                raise BadRequest(f'joint {name!r} is not on the bus (missing at configure)')
             if not math.isfinite(value):
-                return None, f'joint {name!r}: {value} is not a finite number'
+                raise BadRequest(f'joint {name!r}: {value} is not a finite number')
             if servo.switching:
-                return None, f'joint {name!r} is changing its operating mode: try again'
+                raise Refused(f'joint {name!r} is changing its operating mode: try again')
             if servo.name in self._tasks:
-                return None, (f'joint {name!r} is {servo.status or "busy"}: it takes goals '
+                raise Refused(f'joint {name!r} is {servo.status or "busy"}: it takes goals '
                               'again once that is done')
             command = servo.units.kinds.get(kind)
             if command is None:
-                return None, (f'joint {name!r} is a {servo.model.name}, which has no '
-                              f'{modes.GOAL_REGISTERS[kind]} register (no {kind} control); '
-                              f'its commands: {", ".join(sorted(servo.units.kinds))}')
+                raise BadRequest(f'joint {name!r} is a {servo.model.name}, which has no '
+                                 f'{modes.GOAL_REGISTERS[kind]} register (no {kind} control); '
+                                 f'its commands: {", ".join(sorted(servo.units.kinds))}')
             if kind not in modes.BY_NAME[servo.mode].commands:
-                return None, (f'joint {name!r} is in {servo.mode} mode: {kind} commands do not '
-                              'apply to it')
+                raise BadRequest(f'joint {name!r} is in {servo.mode} mode: {kind} commands '
+                                 'do not apply to it')
             if abs(value) > 1e9:
-                return None, f'joint {name!r}: {value} {command.unit} is out of any range'
+                raise BadRequest(f'joint {name!r}: {value} {command.unit} is out of any range')
             offset = servo.turn_offset if kind == 'position' else 0
             raw = command.to_raw(value) - offset
             clamped = _clamp(servo, command.register, raw)
@@ -90,14 +91,15 @@ class Goals:
                     f'joint {name!r}: {kind} goal {value:g} {command.unit} clamped to '
                     f'{command.to_si(clamped + offset):g} {command.unit} (servo limit)')
             goals.append((servo, command.register, clamped))
-        return goals, ''
+        return goals
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Queue goals (all or none): written by the next write."""
         with self.lock:
-            goals, reason = self.check(kind, names, values)
-            if goals is None:
-                return Result(False, reason)
+            try:
+                goals = self.check(kind, names, values)
+            except Refused as exc:
+                return Result(False, str(exc))
             now = self._clock()
             for servo, register, raw in goals:
                 self._queue(servo, register, raw)

@@ -6,7 +6,8 @@ reason and writes nothing when the request cannot be done as it stands, and answ
 transaction with a message rather than an exception; a lost port is handled on the way.
 """
 
-from typing import Callable, List, Optional, Sequence, Tuple
+import functools
+from typing import Any, Callable, List, Optional, Sequence
 
 from dxl_servo_driver import models
 from dxl_servo_driver import registers
@@ -17,9 +18,20 @@ from dxl_servo_driver.driver.port_watch import PortWatch
 from dxl_servo_driver.driver.recovery import Recovery
 from dxl_servo_driver.driver.servo import Result, run, Servo
 from dxl_servo_driver.driver.setup import Setup
-from dxl_servo_driver.errors import CommError, Interrupted, PortError
+from dxl_servo_driver.errors import BadRequest, CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import Task
+
+
+def _answers(method: Callable[..., Result]) -> Callable[..., Result]:
+    """Answer a request refused (BadRequest, Refused) with the reason rather than raise."""
+    @functools.wraps(method)
+    def answered(*args: Any, **kwargs: Any) -> Result:
+        try:
+            return method(*args, **kwargs)
+        except Refused as exc:
+            return Result(False, str(exc))
+    return answered
 
 
 class Services:
@@ -38,6 +50,7 @@ class Services:
         self._port = ctx.port
         self._ports = ports
 
+    @_answers
     def command_now(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Write goals at once (service path): answered after they were written."""
         with self._lock:
@@ -53,9 +66,9 @@ class Services:
                 return Result(False, f'goals not written: {exc}')
             return Result(True, f'{len(names)} {kind} goals written')
 
-    def _servos_named(self, names: Sequence[str]) -> Tuple[Optional[List[Servo]], str]:
+    def _servos_named(self, names: Sequence[str]) -> List[Servo]:
         if self._port.lost:
-            return None, f'the port is lost ({self._port.error}); try again when it is back'
+            raise Refused(f'the port is lost ({self._port.error}); try again when it is back')
         if not names:
             servos = self._roster.active()
         else:
@@ -63,15 +76,20 @@ class Services:
             for name in names:
                 servo = self._roster.by_name.get(name)
                 if servo is None:
-                    return None, f'unknown joint {name!r}'
+                    raise BadRequest(f'unknown joint {name!r}')
                 if not servo.online:
-                    return None, f'joint {name!r} is not on the bus'
+                    raise BadRequest(f'joint {name!r} is not on the bus')
                 servos.append(servo)
         for servo in servos:
             if servo.name in self._tasks:
-                return None, (f'joint {servo.name!r} is {servo.status or "busy"}: try '
-                              'again in a moment')
-        return servos, ''
+                raise Refused(f'joint {servo.name!r} is {servo.status or "busy"}: try again in a '
+                              'moment')
+        return servos
+
+    def _one_named(self, name: str) -> Servo:
+        if not name:
+            raise BadRequest('no joint named')
+        return self._servos_named([name])[0]
 
     def _request(self, what: str, action: Callable[[], Result]) -> Result:
         """Run a service's bus work: a lost port is handled, a bus failure is the answer."""
@@ -83,12 +101,11 @@ class Services:
         except Interrupted:
             return Result(False, f'{what} interrupted: the node is stopping')
 
+    @_answers
     def set_torque(self, names: Sequence[str], enable: bool) -> Result:
         """Torque on (goal = present first) or off."""
         with self._lock:
-            servos, reason = self._servos_named(names)
-            if servos is None:
-                return Result(False, reason)
+            servos = self._servos_named(names)
             word = 'on' if enable else 'off'
 
             def action() -> Result:
@@ -105,22 +122,21 @@ class Services:
                 return Result(True, f'torque {word} for {", ".join(s.name for s in servos)}')
             return self._request(f'torque {word}', action)
 
+    @_answers
     def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
         """Torque off, mode, what a mode change resets re-applied, goal = present, torque back."""
         with self._lock:
             if mode not in modes.BY_NAME:
-                return Result(False, f'unknown operating mode {mode!r} (one of '
-                              f'{", ".join(modes.NAMES)})')
+                raise BadRequest(f'unknown operating mode {mode!r} (one of '
+                                 f'{", ".join(modes.NAMES)})')
             if not names:
-                return Result(False, 'no joint named')
-            servos, reason = self._servos_named(names)
-            if servos is None:
-                return Result(False, reason)
+                raise BadRequest('no joint named')
+            servos = self._servos_named(names)
             for servo in servos:
                 if mode not in servo.model.modes:
-                    return Result(False, f'joint {servo.name!r} is a {servo.model.name}, which '
-                                  f'has no {mode} mode (its modes: '
-                                  f'{", ".join(servo.model.modes)})')
+                    raise BadRequest(f'joint {servo.name!r} is a {servo.model.name}, which has '
+                                     f'no {mode} mode (its modes: '
+                                     f'{", ".join(servo.model.modes)})')
             done: List[str] = []
 
             def action() -> Result:
@@ -140,6 +156,7 @@ class Services:
                 return Result(True, f'{", ".join(done)} now in {mode} mode')
             return self._request('mode change', action)
 
+    @_answers
     def reboot(self, names: Sequence[str], wait: Optional[Callable[[List[Task]], None]] = None
                ) -> Result:
         """
@@ -150,9 +167,7 @@ class Services:
         cycle), they run here to their end.
         """
         with self._lock:
-            servos, reason = self._servos_named(names)
-            if servos is None:
-                return Result(False, reason)
+            servos = self._servos_named(names)
             # A joint named twice is rebooted once.
             servos = list({servo.name: servo for servo in servos}.values())
             tasks = self._recovery.start_reboots(servos)
@@ -175,34 +190,27 @@ class Services:
             return Result(False, 'reboot failed: ' + '; '.join(failed))
         return Result(True, f'rebooted and restored {", ".join(s.name for s in servos)}')
 
-    def read_register(self, name: str, register: str) -> Tuple[Optional[int], str]:
-        """Read one register by snake_case name or decimal address: (value, message)."""
+    @_answers
+    def read_register(self, name: str, register: str) -> Result:
+        """Read one register by snake_case name or decimal address (Result.value: the value)."""
         with self._lock:
-            servos, reason = self._servos_named([name]) if name else (None, 'no joint named')
-            if servos is None:
-                return None, reason
-            item, reason = _register(servos[0].model, register)
-            if item is None:
-                return None, reason
+            servo = self._one_named(name)
+            item = _register(servo.model, register)
             try:
-                value = self._link.read(servos[0], item.name)
+                value = self._link.read(servo, item.name)
             except PortError as exc:
                 self._ports.lose(exc)
-                return None, str(exc)
+                return Result(False, str(exc))
             except CommError as exc:
-                return None, str(exc)
-            return value, f'{name}.{item.name} (address {item.address}) = {value}'
+                return Result(False, str(exc))
+            return Result(True, f'{name}.{item.name} (address {item.address}) = {value}', value)
 
+    @_answers
     def write_register(self, name: str, register: str, value: int) -> Result:
         """Write one register; EEPROM while torque is on is refused with the reason."""
         with self._lock:
-            servos, reason = self._servos_named([name]) if name else (None, 'no joint named')
-            if servos is None:
-                return Result(False, reason)
-            servo = servos[0]
-            item, reason = _register(servo.model, register)
-            if item is None:
-                return Result(False, reason)
+            servo = self._one_named(name)
+            item = _register(servo.model, register)
             try:
                 registers.writable_register(servo.model, item.name, runtime=True)
                 registers.check_range(item, value)
@@ -235,9 +243,9 @@ class Services:
             return self._request('write', action)
 
 
-def _register(table: models.Model, key: str) -> Tuple[Optional[models.Item], str]:
+def _register(table: models.Model, key: str) -> models.Item:
     key = key.strip()
     try:
-        return table.lookup(int(key) if key.isascii() and key.isdigit() else key), ''
+        return table.lookup(int(key) if key.isascii() and key.isdigit() else key)
     except KeyError as exc:
-        return None, str(exc.args[0])
+        raise BadRequest(str(exc.args[0])) from None

@@ -7,7 +7,7 @@ fields of a Servo say which part writes them.
 
 from dataclasses import dataclass, field
 import time
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import models
 from dxl_servo_driver import state_block
@@ -102,6 +102,22 @@ class Servo:
         """Return the last position read, in the joint's frame; None if never read."""
         return self.state[IDX_POSITION] + self.turn_offset if self.state is not None else None
 
+    def goal_position_range(self) -> Tuple[int, int]:
+        """Return the Goal Position values taken now: its limits (position mode), else all."""
+        if self.mode == 'position' and self.limits:
+            return self.limits['min_position_limit'], self.limits['max_position_limit']
+        return -xm430.EXTENDED_POSITION_LIMIT, xm430.EXTENDED_POSITION_LIMIT
+
+    def position_rad(self, raw: int) -> float:
+        """Return a position register value (present or goal) as the joint's angle (rad)."""
+        return self.units.position_to_rad(raw + self.turn_offset)
+
+    def present_rad(self) -> Optional[float]:
+        """Return the joint's angle read in the latest cycle (rad); None if not read then."""
+        if self.state is None or not self.fresh:
+            return None
+        return self.position_rad(self.state[IDX_POSITION])
+
     def set_model(self, table: models.Model) -> None:
         """Take the table, units and state block of a model."""
         self.model = table
@@ -140,10 +156,11 @@ class PortState:
 
 @dataclass
 class Result:
-    """The outcome of a request: success and a message meant for a person."""
+    """The answer to a request: success, a message meant for a person, and a value if any."""
 
     success: bool
     message: str
+    value: Any = None
 
 
 class Throttle:
@@ -187,11 +204,9 @@ class StaleGuard:
 
 
 def clamp_position(servo: Servo, raw: int) -> int:
-    """Return a Goal Position within the servo's limits (position mode) or the register's."""
-    if servo.mode == 'position' and servo.limits:
-        return min(max(raw, servo.limits['min_position_limit']),
-                   servo.limits['max_position_limit'])
-    return min(max(raw, -xm430.EXTENDED_POSITION_LIMIT), xm430.EXTENDED_POSITION_LIMIT)
+    """Return a Goal Position within the range the servo takes now (goal_position_range)."""
+    low, high = servo.goal_position_range()
+    return min(max(raw, low), high)
 
 
 def run(steps: Steps) -> None:

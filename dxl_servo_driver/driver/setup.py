@@ -16,7 +16,8 @@ from dxl_servo_driver import state_block
 from dxl_servo_driver.config import check_joint_against
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Servo
-from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.errors import (
+    CommError, CommTimeout, ConfigurationError, CorruptReply, PortError, StatusError)
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.tasks import Steps
@@ -93,9 +94,10 @@ class Setup:
         servo.set_model(models.model_for(model_number))
         servo.firmware_version = self._link.read(servo, 'firmware_version')
         servo.set_model(models.model_for(model_number, servo.firmware_version))
-        problem = check_joint_against(servo.joint, servo.model)
-        if problem:
-            raise ManagerError(f'{where} is a {servo.model.name}: {problem}')
+        try:
+            check_joint_against(servo.joint, servo.model)
+        except ConfigurationError as exc:
+            raise ManagerError(f'{where} is a {servo.model.name}: {exc}') from None
 
     def apply_configuration(self, servo: Servo) -> Steps:
         """Mode, EEPROM (only where it differs), RAM registers, indirect map; torque stays off."""

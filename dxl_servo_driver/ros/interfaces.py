@@ -8,8 +8,9 @@ transaction, never raise, and refuse while the node is not active.
 import time
 from typing import Any, Callable, List, Protocol
 
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.manager import Manager, Result
 from dxl_servo_driver.models import modes
+from dxl_servo_driver.ros.arm import Arm
 from dxl_servo_driver.tasks import Task
 from dxl_servo_driver_msgs.msg import GripperCommand, JointCommand
 from dxl_servo_driver_msgs.srv import (
@@ -25,6 +26,7 @@ class Host(Protocol):
     """What the interfaces need of the node."""
 
     manager: Manager
+    arm: Arm
 
     @property
     def active(self) -> bool:
@@ -43,15 +45,6 @@ class Host(Protocol):
     def get_logger(self) -> Any:
         """Return the node's logger (rclpy Node)."""
 
-    def submit_trajectory(self, msg: JointTrajectory) -> str:
-        """Validate and start a trajectory; return '' or why it was refused."""
-
-    def joint_command(self, msg: JointState) -> str:
-        """Queue a joint-state command; return '' or why it was refused."""
-
-    def gripper_command(self, msg: GripperCommand) -> str:
-        """Queue a gripper command; return '' or why it was refused."""
-
 
 class Interfaces:
     """The command topics (~/commands/<kind>) and services (~/set_<kind>, ~/reboot, ...)."""
@@ -59,19 +52,20 @@ class Interfaces:
     def __init__(self, host: Host) -> None:
         self._host = host
         self.subscriptions = [
-            host.create_subscription(JointCommand, f'~/commands/{kind}',
-                                     self._command_callback(kind), 10)
+            host.create_subscription(JointCommand, f'~/commands/{kind}', self._refusable(
+                f'{kind} command', self._queue(kind)), 10)
             for kind in modes.COMMAND_KINDS]
         # Arms: a trajectory executed in the driver's cycle, and what ros2_control's topic
         # bridge (JointStateTopicSystem) publishes as its commands.
-        self.subscriptions.append(host.create_subscription(
-            JointTrajectory, '~/joint_trajectory',
-            self._refusable('trajectory', host.submit_trajectory), 10))
-        self.subscriptions.append(host.create_subscription(
-            JointState, '~/joint_command', self._refusable('joint_command', host.joint_command),
-            10))
-        self.subscriptions.append(host.create_subscription(
-            GripperCommand, '~/gripper', self._refusable('gripper', host.gripper_command), 10))
+        arm = host.arm
+        self.subscriptions += [
+            host.create_subscription(JointTrajectory, '~/joint_trajectory',
+                                     self._refusable('trajectory', arm.submit_trajectory), 10),
+            host.create_subscription(JointState, '~/joint_command',
+                                     self._refusable('joint_command', arm.joint_command), 10),
+            host.create_subscription(GripperCommand, '~/gripper',
+                                     self._refusable('gripper', arm.gripper_command), 10),
+        ]
         self.services = [
             host.create_service(SetGoals, f'~/set_{kind}', self._set_goals_callback(kind))
             for kind in modes.COMMAND_KINDS]
@@ -83,35 +77,23 @@ class Interfaces:
             host.create_service(WriteRegister, '~/write_register', self._on_write_register),
         ]
 
-    def _command_callback(self, kind: str) -> Callable[[JointCommand], None]:
-        def callback(msg: JointCommand) -> None:
-            log = self._host.get_logger()
-            if not self._host.active:
-                log.warning(f'{kind} command ignored: the node is not active',
-                            throttle_duration_sec=2.0)
-                return
-            try:
-                result = self._host.manager.command(kind, list(msg.name), list(msg.value))
-            except Exception as exc:  # noqa: B902 - a bad message must not stop the node
-                log.error(f'{kind} command failed: {exc}', throttle_duration_sec=2.0)
-                return
-            if not result.success:
-                log.error(f'{kind} command refused: {result.message}',
-                          throttle_duration_sec=2.0)
-        return callback
+    def _queue(self, kind: str) -> Callable[[JointCommand], Result]:
+        def take(msg: JointCommand) -> Result:
+            return self._host.manager.command(kind, list(msg.name), list(msg.value))
+        return take
 
-    def _refusable(self, what: str, take: Callable[[Any], str]) -> Callable[[Any], None]:
+    def _refusable(self, what: str, take: Callable[[Any], Result]) -> Callable[[Any], None]:
         def callback(msg: Any) -> None:
             log = self._host.get_logger()
             if not self._host.active:
                 log.warning(f'{what} ignored: the node is not active', throttle_duration_sec=2.0)
                 return
             try:
-                reason = take(msg)
+                result = take(msg)
             except Exception as exc:  # noqa: B902 - a bad message must not stop the node
-                reason = f'internal error: {exc!r}'
-            if reason:
-                log.error(f'{what} refused: {reason}', throttle_duration_sec=1.0)
+                result = Result(False, f'internal error: {exc!r}')
+            if not result.success:
+                log.error(f'{what} refused: {result.message}', throttle_duration_sec=1.0)
         return callback
 
     def _guard(self, response: Any, action: Callable[[], Any]) -> Any:
@@ -164,13 +146,12 @@ class Interfaces:
             response.message = NOT_ACTIVE
             return response
         try:
-            manager = self._host.manager
-            value, message = manager.read_register(request.name, request.register_name)
+            result = self._host.manager.read_register(request.name, request.register_name)
         except Exception as exc:  # noqa: B902 - services answer, they never raise
-            value, message = None, f'internal error: {exc!r}'
-        response.success = value is not None
-        response.value = value if value is not None else 0
-        response.message = message
+            result = Result(False, f'internal error: {exc!r}')
+        response.success = result.success
+        response.value = result.value if result.success else 0
+        response.message = result.message
         return response
 
     def _on_write_register(self, request: Any, response: Any) -> Any:

@@ -12,7 +12,7 @@ from typing import Any, List, Optional
 
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver.errors import Interrupted
-from dxl_servo_driver.node import DriverNode, NODE_NAME, StartupFailure
+from dxl_servo_driver.ros.node import DriverNode, NODE_NAME, StartupFailure
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy

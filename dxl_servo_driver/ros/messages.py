@@ -191,7 +191,7 @@ def servo_state(servo: Servo, grasping: bool = False) -> ServoState:
             setattr(msg, attr, math.nan)
         return msg
     units = servo.units
-    msg.position = units.position_to_rad(state[IDX_POSITION] + servo.turn_offset)
+    msg.position = servo.position_rad(state[IDX_POSITION])
     msg.velocity = units.velocity_to_rad_s(state[IDX_VELOCITY])
     # NaN on a model that senses no current (its effort comes from Present Load).
     msg.current = (units.current_to_a(state[IDX_EFFORT])

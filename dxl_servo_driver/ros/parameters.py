@@ -7,9 +7,10 @@ cleanup), and the next configure uses them; while configured they are refused wi
 `joints` fixes which joint parameters exist: it needs a restart.
 """
 
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping
 
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver.errors import Refused
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType)
 from rclpy.node import Node
@@ -105,10 +106,9 @@ def coerce(params: List[Parameter]) -> List[Parameter]:
 
 
 def check_changes(params: List[Parameter], lifecycle_state: str,
-                  thresholds: Mapping[str, float]
-                  ) -> Tuple[Optional[str], Dict[str, Any]]:
+                  thresholds: Mapping[str, float]) -> Dict[str, Any]:
     """
-    Return (reason, runtime changes): a reason when the set is refused (nothing changes).
+    Return the runtime changes of a parameter set; DriverError (nothing changes) when refused.
 
     Unconfigured, any parameter but `joints` is accepted as it is given (configure checks
     the whole configuration and says what is wrong); otherwise only runtime ones, checked.
@@ -117,20 +117,14 @@ def check_changes(params: List[Parameter], lifecycle_state: str,
     for param in params:
         spec = cfg.PARAMS_BY_NAME.get(param.name)
         if spec is not None and spec.restart:
-            return f'{param.name} cannot be changed while the node runs (restart it)', {}
+            raise Refused(f'{param.name} cannot be changed while the node runs (restart it)')
         if spec is None or not spec.runtime:
             if lifecycle_state == 'unconfigured':
                 continue
-            return (f'{param.name} is read at configure: change it while the node is '
-                    f'unconfigured (it is {lifecycle_state}; cleanup first), or restart it'), {}
-        try:
-            changes[param.name] = cfg.check_spec(spec, param.value)
-        except cfg.ConfigError as exc:
-            return str(exc), {}
+            raise Refused(f'{param.name} is read at configure: change it while the node is '
+                          f'unconfigured (it is {lifecycle_state}; cleanup first), or restart it')
+        changes[param.name] = cfg.check_spec(spec, param.value)
     merged = dict(thresholds)
     merged.update({k: v for k, v in changes.items() if k in merged})
-    try:
-        cfg.check_thresholds(merged)
-    except cfg.ConfigError as exc:
-        return str(exc), {}
-    return None, changes
+    cfg.check_thresholds(merged)
+    return changes

@@ -1,11 +1,12 @@
 """
 The ROS 2 node: lifecycle transitions and the wiring of its parts over the manager.
 
-Its parts live in dxl_servo_driver.ros: parameters (declarations, what changes when), the
-cycle runner (its own thread at loop_rate, so it never waits on the executor), messages
-(joint_states, servo_states), diagnostics, interfaces (command topics and services) and main
-(`ros2 run`). Topic and service callbacks only queue goals or call the manager, whose lock
-keeps one transaction on the bus at a time.
+Its parts live beside it in dxl_servo_driver.ros: parameters (declarations, what changes
+when), the cycle runner (its own thread at loop_rate, so it never waits on the executor),
+messages (joint_states, servo_states), diagnostics, interfaces (command topics and services),
+the arm (trajectories, joint-state and gripper commands) and main (`ros2 run`). Topic and
+service callbacks only queue goals or call the manager, whose lock keeps one transaction on the
+bus at a time.
 """
 
 import threading
@@ -14,13 +15,10 @@ from typing import Any, Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver import trajectory as traj
-from dxl_servo_driver.commands import JointStateCommandError, split_joint_state
 from dxl_servo_driver.errors import DriverError, Interrupted
-from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
 from dxl_servo_driver.manager import Manager, ManagerError, open_transport, PortFactory
-from dxl_servo_driver.models import xm430
 from dxl_servo_driver.ros import parameters
+from dxl_servo_driver.ros.arm import Arm
 from dxl_servo_driver.ros.cycle import CycleRunner
 from dxl_servo_driver.ros.diagnostics import diagnostics
 from dxl_servo_driver.ros.interfaces import Interfaces
@@ -32,7 +30,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
-__all__ = ['DriverNode', 'main', 'NODE_NAME', 'StartupFailure']
+__all__ = ['DriverNode', 'NODE_NAME', 'StartupFailure']
 
 NODE_NAME = 'dxl_servo_driver'
 
@@ -71,12 +69,9 @@ class DriverNode(LifecycleNode):
         self.manager = self._new_manager(self.config)
         self._active = False
         self._shut_down = False
+        self.arm = Arm(self, self.config)
         self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
-                                   self._prepare_goals)
-        self._trajectories = traj.Executor(self._present_rad, self._trajectory_ended,
-                                           self.config.goal_tolerance)
-        self._grasps = {joint.name: GraspDetector() for joint in self.config.joints
-                        if joint.gripper}
+                                   self.arm.prepare_goals)
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.order)
@@ -154,10 +149,10 @@ class DriverNode(LifecycleNode):
     def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
         if self._declaring:
             return SetParametersResult(successful=True)
-        reason, changes = parameters.check_changes(params, self._lifecycle_state(),
-                                                   self._thresholds)
-        if reason is not None:
-            return SetParametersResult(successful=False, reason=reason)
+        try:
+            changes = parameters.check_changes(params, self._lifecycle_state(), self._thresholds)
+        except DriverError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
         for name, value in changes.items():
             # Kept in the configuration too: configure compares it with the parameters.
             self.config = cfg.replace(self.config, **{name: value})
@@ -169,7 +164,7 @@ class DriverNode(LifecycleNode):
             elif name == 'command_timeout':
                 self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
             elif name == 'goal_tolerance':
-                self._trajectories.tolerance_rad = value
+                self.arm.trajectories.tolerance_rad = value
             else:
                 self._thresholds[name] = value
         return SetParametersResult(successful=True)
@@ -207,8 +202,7 @@ class DriverNode(LifecycleNode):
             self.config = config
             self.manager = self._new_manager(config)
             self._take_rates(config)
-            self._grasps = {joint.name: GraspDetector() for joint in config.joints
-                            if joint.gripper}
+            self.arm.take(config)
             self.get_logger().info('configure: using the parameters set since the last one')
         return True
 
@@ -330,7 +324,7 @@ class DriverNode(LifecycleNode):
     def _stop_cycle(self) -> None:
         self._active = False
         self._runner.stop()
-        self._trajectories.cancel()
+        self.arm.cancel()
 
     def _torque_off(self) -> str:
         """
@@ -398,137 +392,10 @@ class DriverNode(LifecycleNode):
         if self.cycle_failure is not None and self._lifecycle_state() == 'active':
             self.trigger_deactivate()
 
-    # arms: trajectories and joint-state commands -------------------------------------------
-    def _present_rad(self, name: str) -> Optional[float]:
-        servo = self.manager.servos.get(name)
-        if servo is None or servo.state is None or not servo.fresh:
-            return None
-        return servo.units.position_to_rad(servo.state[0] + servo.turn_offset)
-
-    def _limits(self) -> Dict[str, traj.Limits]:
-        limits = {}
-        for servo in self.manager.order:
-            units = servo.units
-            if servo.mode == 'position' and servo.limits:
-                low = units.position_to_rad(servo.limits['min_position_limit'])
-                high = units.position_to_rad(servo.limits['max_position_limit'])
-            else:
-                # Multi-turn: the goal register's range, in the joint's continuous frame.
-                bound = xm430.EXTENDED_POSITION_LIMIT
-                low = units.position_to_rad(-bound + servo.turn_offset)
-                high = units.position_to_rad(bound + servo.turn_offset)
-            limits[servo.name] = traj.Limits(servo.mode, low, high, servo.online)
-        return limits
-
-    def submit_trajectory(self, msg: Any) -> str:
-        """Validate a JointTrajectory and start it at its stamp; '' or why it was refused."""
-        points = [traj.Point(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
-                             tuple(p.positions), tuple(p.velocities)) for p in msg.points]
-        stamp = msg.header.stamp
-        start_s = time.monotonic()
-        if stamp.sec or stamp.nanosec:
-            # The stamp is on the node's clock: the same distance from now on the cycle's.
-            now_ns = self.get_clock().now().nanoseconds
-            start_s += (stamp.sec * 10 ** 9 + stamp.nanosec - now_ns) * 1e-9
-        try:
-            trajectory = traj.validate(list(msg.joint_names), points, self._limits(), start_s)
-        except traj.TrajectoryError as exc:
-            return str(exc)
-        self._trajectories.submit(trajectory)
-        return ''
-
-    def joint_command(self, msg: Any) -> str:
-        """Queue a JointState command, each joint's value by its mode; '' or why not."""
-        servos = self.manager.servos
-        names = list(msg.name)
-        try:
-            goals = split_joint_state(
-                names, {'position': msg.position, 'velocity': msg.velocity,
-                        'effort': msg.effort},
-                {name: servo.mode for name, servo in servos.items()},
-                {name: servo.units.torque_constant_nm_per_a for name, servo in servos.items()})
-        except JointStateCommandError as exc:
-            return str(exc)
-        # Every kind is checked before any is queued: refused whole, or taken whole.
-        for kind, (joints, values) in goals.items():
-            checked, reason = self.manager.check_goals(kind, joints, values)
-            if checked is None:
-                return reason
-        for kind, (joints, values) in goals.items():
-            result = self.manager.command(kind, joints, values)
-            if not result.success:
-                return result.message
-        return ''
-
-    def gripper_command(self, msg: Any) -> str:
-        """Queue a gripper goal (and its current); '' or why it was refused."""
-        servo = self.manager.servos.get(msg.name)
-        if servo is None:
-            return f'unknown joint {msg.name!r}'
-        if not servo.joint.gripper:
-            return f'joint {msg.name!r} is not a gripper (set {msg.name}.gripper: true)'
-        if servo.mode != 'current_based_position':
-            return f'gripper {msg.name!r} is in {servo.mode} mode, not current_based_position'
-        limit = servo.units.current_to_a(servo.limits.get('current_limit', 0))
-        spec = GripperSpec(servo.name, servo.joint.gripper_open, servo.joint.gripper_closed,
-                           limit)
-        try:
-            goal, current = gripper_goal(spec, msg.position, msg.ratio, msg.max_effort)
-        except GripperError as exc:
-            return str(exc)
-        goals = [('position', goal)] + ([('current', current)] if current is not None else [])
-        for kind, value in goals:
-            checked, reason = self.manager.check_goals(kind, [servo.name], [value])
-            if checked is None:
-                return reason
-        for kind, value in reversed(goals):   # the current first: never close with more
-            result = self.manager.command(kind, [servo.name], [value])
-            if not result.success:
-                return result.message
-        return ''
-
-    def _update_grasps(self, now_s: float) -> None:
-        for name, detector in self._grasps.items():
-            servo = self.manager.servos[name]
-            state = servo.state
-            goal_position = servo.goal_raw.get('goal_position')
-            goal_current = servo.goal_raw.get('goal_current')
-            if state is None or not servo.fresh or goal_position is None or goal_current is None:
-                continue
-            units = servo.units
-            was = detector.grasping
-            held = detector.update(
-                now_s, units.position_to_rad(state[0] + servo.turn_offset),
-                units.velocity_to_rad_s(state[1]), units.current_to_a(state[2]),
-                units.position_to_rad(goal_position + servo.turn_offset),
-                units.current_to_a(goal_current))
-            if held != was:
-                self.get_logger().info(f'gripper {name!r}: ' + (
-                    'holding an object' if held else 'no longer holding an object'))
-
-    def _prepare_goals(self, now_s: float) -> None:
-        goals = self._trajectories.step(now_s)
-        if not goals:
-            return
-        result = self.manager.command('position', list(goals), list(goals.values()))
-        if not result.success:
-            # A joint went away (recovering, port lost): the rest of the path is not run blind.
-            self._trajectories.cancel()
-            self.get_logger().error(f'trajectory aborted: {result.message}')
-
-    def _trajectory_ended(self, outcome: traj.Outcome) -> None:
-        if outcome.beyond:
-            joints = ', '.join(f'{name} {error:.3f} rad' for name, error in outcome.beyond)
-            self.get_logger().warning(
-                f'trajectory ended beyond goal_tolerance '
-                f'{self._trajectories.tolerance_rad:g} rad: {joints}')
-        else:
-            self.get_logger().info(f'trajectory done (final error {outcome.worst_rad:.4f} rad)')
-
     # publishing -----------------------------------------------------------------------------
     def _publish(self, stamp_ns: int, read_ok: bool) -> None:
-        if read_ok and self._grasps:
-            self._update_grasps(time.monotonic())
+        if read_ok and self.arm.grasps:
+            self.arm.update_grasps(time.monotonic())
         if read_ok and self.joint_states_pub is not None:
             msg = self._joints.message(stamp_ns)
             if msg is not None:
@@ -537,29 +404,14 @@ class DriverNode(LifecycleNode):
         if self._state_period_s and now - self._last_state_s >= self._state_period_s:
             self._last_state_s = now
             if self.servo_states_pub is not None:
-                grasping = {name: detector.grasping for name, detector in self._grasps.items()}
                 self.servo_states_pub.publish(
-                    servo_states(self.manager.order, time_msg(stamp_ns), grasping))
+                    servo_states(self.manager.order, time_msg(stamp_ns), self.arm.grasping()))
 
     def _publish_diagnostics(self) -> None:
         try:
-            executor = self._trajectories
-            last = executor.last_outcome
-            extra = {'trajectories_accepted': executor.accepted,
-                     'trajectories_finished': executor.finished,
-                     'trajectories_beyond_goal_tolerance': executor.out_of_tolerance,
-                     'last_trajectory_final_error_rad':
-                         f'{last.worst_rad:.4f}' if last is not None else 'none'}
             self.diagnostics_pub.publish(diagnostics(
                 self.get_fully_qualified_name(), self.config, self.manager,
                 self._runner.facts(), self._lifecycle_state(), self._thresholds,
-                self.get_clock().now().to_msg(), extra,
-                {name: detector.grasping for name, detector in self._grasps.items()}))
+                self.get_clock().now().to_msg(), self.arm.facts(), self.arm.grasping()))
         except Exception as exc:  # noqa: B902 - a report must not stop the executor
             self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=10.0)
-
-
-def main(args: Optional[List[str]] = None) -> int:
-    """Run the driver node (`ros2 run dxl_servo_driver node`); see ros.main."""
-    from dxl_servo_driver.ros.main import main as run   # it imports this module
-    return run(args)

@@ -1,0 +1,189 @@
+"""
+The arm's side of the node: trajectories run in the cycle, joint-state and gripper commands.
+
+What an arm asks of the driver beyond one servo's goal: a JointTrajectory sampled at every
+cycle (trajectory.Executor), a sensor_msgs/JointState command with each joint's value taken by
+its mode (what ros2_control's topic bridge publishes), a gripper goal with its current, and
+whether each gripper holds something. Each request is answered with a Result: the node's
+subscriptions log its reason when refused. No bus work here: goals go to the manager's queue,
+written by the next cycle.
+"""
+
+import time
+from typing import Any, Dict, List, Optional, Protocol, Tuple
+
+from dxl_servo_driver import config as cfg
+from dxl_servo_driver import trajectory as traj
+from dxl_servo_driver.commands import split_joint_state
+from dxl_servo_driver.errors import BadRequest
+from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperSpec
+from dxl_servo_driver.manager import IDX_EFFORT, IDX_POSITION, IDX_VELOCITY, Manager, Result
+
+__all__ = ['Arm']
+
+
+class Host(Protocol):
+    """What the arm needs of the node."""
+
+    manager: Manager
+
+    def get_logger(self) -> Any:
+        """Return the node's logger (rclpy Node)."""
+
+    def get_clock(self) -> Any:
+        """Return the node's clock (rclpy Node): trajectory stamps are on it."""
+
+
+class Arm:
+    """Trajectories, joint-state and gripper commands, grasps: one per node."""
+
+    def __init__(self, host: Host, config: cfg.DriverConfig) -> None:
+        self._host = host
+        self.trajectories = traj.Executor(self._present_rad, self._trajectory_ended,
+                                          config.goal_tolerance)
+        self.grasps: Dict[str, GraspDetector] = {}
+        self.take(config)
+
+    def take(self, config: cfg.DriverConfig) -> None:
+        """Take a new configuration's grippers (configure after parameters changed)."""
+        self.grasps = {joint.name: GraspDetector() for joint in config.joints if joint.gripper}
+
+    # trajectories ---------------------------------------------------------------------------
+    def _present_rad(self, name: str) -> Optional[float]:
+        servo = self._host.manager.servos.get(name)
+        return servo.present_rad() if servo is not None else None
+
+    def limits(self) -> Dict[str, traj.Limits]:
+        """Return what a trajectory is checked against: each joint's mode and range (rad)."""
+        limits = {}
+        for servo in self._host.manager.order:
+            low, high = servo.goal_position_range()
+            limits[servo.name] = traj.Limits(servo.mode, servo.position_rad(low),
+                                             servo.position_rad(high), servo.online)
+        return limits
+
+    def submit_trajectory(self, msg: Any) -> Result:
+        """Validate a JointTrajectory whole and start it at its stamp (now if unstamped)."""
+        points = [traj.Point(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
+                             tuple(p.positions), tuple(p.velocities)) for p in msg.points]
+        stamp = msg.header.stamp
+        start_s = time.monotonic()
+        if stamp.sec or stamp.nanosec:
+            # The stamp is on the node's clock: the same distance from now on the cycle's.
+            now_ns = self._host.get_clock().now().nanoseconds
+            start_s += (stamp.sec * 10 ** 9 + stamp.nanosec - now_ns) * 1e-9
+        try:
+            trajectory = traj.validate(list(msg.joint_names), points, self.limits(), start_s)
+        except BadRequest as exc:
+            return Result(False, str(exc))
+        self.trajectories.submit(trajectory)
+        return Result(True, f'trajectory of {len(points)} points accepted')
+
+    def prepare_goals(self, now_s: float) -> None:
+        """Queue this cycle's trajectory goals (called by the cycle before its write)."""
+        goals = self.trajectories.step(now_s)
+        if not goals:
+            return
+        result = self._host.manager.command('position', list(goals), list(goals.values()))
+        if not result.success:
+            # A joint went away (recovering, port lost): the rest of the path is not run blind.
+            self.trajectories.cancel()
+            self._host.get_logger().error(f'trajectory aborted: {result.message}')
+
+    def cancel(self) -> None:
+        """Drop every trajectory (the cycle stops)."""
+        self.trajectories.cancel()
+
+    def _trajectory_ended(self, outcome: traj.Outcome) -> None:
+        log = self._host.get_logger()
+        if outcome.beyond:
+            joints = ', '.join(f'{name} {error:.3f} rad' for name, error in outcome.beyond)
+            log.warning(f'trajectory ended beyond goal_tolerance '
+                        f'{self.trajectories.tolerance_rad:g} rad: {joints}')
+        else:
+            log.info(f'trajectory done (final error {outcome.worst_rad:.4f} rad)')
+
+    # commands -------------------------------------------------------------------------------
+    def _queue_all(self, goals: List[Tuple[str, List[str], List[float]]]) -> Result:
+        """Queue (kind, joints, values) goals in order: all checked first, then all or none."""
+        manager = self._host.manager
+        for kind, joints, values in goals:
+            checked = manager.check_goals(kind, joints, values)
+            if not checked.success:
+                return checked
+        for kind, joints, values in goals:
+            result = manager.command(kind, joints, values)
+            if not result.success:
+                return result
+        return Result(True, 'queued')
+
+    def joint_command(self, msg: Any) -> Result:
+        """Queue a sensor_msgs/JointState command, each joint's value taken by its mode."""
+        servos = self._host.manager.servos
+        try:
+            goals = split_joint_state(
+                list(msg.name), {'position': msg.position, 'velocity': msg.velocity,
+                                 'effort': msg.effort},
+                {name: servo.mode for name, servo in servos.items()},
+                {name: servo.units.torque_constant_nm_per_a for name, servo in servos.items()})
+        except BadRequest as exc:
+            return Result(False, str(exc))
+        return self._queue_all([(kind, joints, values)
+                                for kind, (joints, values) in goals.items()])
+
+    def gripper_command(self, msg: Any) -> Result:
+        """Queue a gripper goal and the current it may close with."""
+        servo = self._host.manager.servos.get(msg.name)
+        if servo is None:
+            return Result(False, f'unknown joint {msg.name!r}')
+        if not servo.joint.gripper:
+            return Result(False, f'joint {msg.name!r} is not a gripper (set {msg.name}.gripper: '
+                          'true)')
+        if servo.mode != 'current_based_position':
+            return Result(False, f'gripper {msg.name!r} is in {servo.mode} mode, not '
+                          'current_based_position')
+        limit = servo.units.current_to_a(servo.limits.get('current_limit', 0))
+        spec = GripperSpec(servo.name, servo.joint.gripper_open, servo.joint.gripper_closed,
+                           limit)
+        try:
+            goal, current = gripper_goal(spec, msg.position, msg.ratio, msg.max_effort)
+        except BadRequest as exc:
+            return Result(False, str(exc))
+        # The current first: a gripper never closes with more than it was told.
+        goals = [('current', [servo.name], [current])] if current is not None else []
+        return self._queue_all(goals + [('position', [servo.name], [goal])])
+
+    # grasps -----------------------------------------------------------------------------------
+    def update_grasps(self, now_s: float) -> None:
+        """Judge from this cycle's sample whether each gripper holds something; log changes."""
+        for name, detector in self.grasps.items():
+            servo = self._host.manager.servos[name]
+            state = servo.state
+            goal_position = servo.goal_raw.get('goal_position')
+            goal_current = servo.goal_raw.get('goal_current')
+            if state is None or not servo.fresh or goal_position is None or goal_current is None:
+                continue
+            units = servo.units
+            was = detector.grasping
+            held = detector.update(
+                now_s, servo.position_rad(state[IDX_POSITION]),
+                units.velocity_to_rad_s(state[IDX_VELOCITY]),
+                units.current_to_a(state[IDX_EFFORT]),
+                servo.position_rad(goal_position), units.current_to_a(goal_current))
+            if held != was:
+                self._host.get_logger().info(f'gripper {name!r}: ' + (
+                    'holding an object' if held else 'no longer holding an object'))
+
+    def grasping(self) -> Dict[str, bool]:
+        """Return whether each gripper holds something."""
+        return {name: detector.grasping for name, detector in self.grasps.items()}
+
+    def facts(self) -> Dict[str, Any]:
+        """Return the arm's lines of /diagnostics (trajectories taken, ended, their error)."""
+        executor = self.trajectories
+        last = executor.last_outcome
+        return {'trajectories_accepted': executor.accepted,
+                'trajectories_finished': executor.finished,
+                'trajectories_beyond_goal_tolerance': executor.out_of_tolerance,
+                'last_trajectory_final_error_rad':
+                    f'{last.worst_rad:.4f}' if last is not None else 'none'}
