@@ -24,6 +24,11 @@ Every wait is a blocking read with an absolute deadline on the monotonic clock, 
 the bytes expected, the baud rate, the servos' Return Delay Time and the USB adapter's latency
 timer: a device that never stops sending cannot hold a transaction past it. The serial device
 itself is serial_port.py's (or the simulator's port): the bus sees a RawPort.
+
+The module is long (~800 lines) on purpose: the rules above (the lock, the flush, the dirty
+flag, the echo, the deadlines, the counters) are one state shared by every transaction, and
+splitting the sync reads from the one-off ones would spread that state over two modules that
+reach into each other.
 """
 
 from dataclasses import dataclass, field
@@ -37,7 +42,7 @@ from dxl_servo_driver.models import Item
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, crc16, ERROR_CODE_MASK, ErrorCode,
     fast_sync_head, fast_sync_size, Frame, Framer, HEADER, Instruction, MAX_ID,
-    parse_fast_sync_status, PROTOCOL_2, STATUS_OVERHEAD)
+    parse_fast_sync_status, PROTOCOL_2)
 from dxl_servo_driver.serial_port import RawPort
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
@@ -72,7 +77,6 @@ ECHO, ANSWER, CORRUPT, STRAY = 'echo', 'answer', 'corrupt', 'stray'
 class Counters:
     """What the bus saw, for diagnostics: every anomaly is counted, none is silent."""
 
-    tx_packets: int = 0
     timeouts: int = 0          # a servo's reply missing at the deadline
     corrupt: int = 0           # replies from a servo we asked that failed their CRC
     status_errors: int = 0     # replies carrying an error code
@@ -146,6 +150,7 @@ class Collected:
         return bool(self.discarded or self.noise or self.corrupt or self.leftover)
 
 
+@dataclass(eq=False)
 class SyncRead:
     """
     A sync read on the wire, owning the bus while its answers come.
@@ -154,17 +159,15 @@ class SyncRead:
     them, once, in the same thread) ends it, and they are the only places that lock is released.
     """
 
-    def __init__(self, bus: 'Bus', request: Request, length: int, address: int, sent_s: float,
-                 deadline_s: float, fast: bool, linger: bool) -> None:
-        self._bus = bus
-        self.request = request
-        self.address = address
-        self.length = length
-        self.sent_s = sent_s
-        self.deadline_s = deadline_s
-        self.fast = fast          # a Fast Sync Read: one status packet for all
-        self.linger = linger      # read on to the deadline: the last whole answer wins
-        self.done = False
+    _bus: 'Bus'
+    request: Request
+    length: int
+    address: int
+    sent_s: float
+    deadline_s: float
+    fast: bool      # a Fast Sync Read: one status packet for all
+    linger: bool    # read on to the deadline: the last whole answer wins
+    done: bool = False
 
     @property
     def ids(self) -> Tuple[int, ...]:
@@ -199,10 +202,10 @@ class SyncRead:
         self.done = True
         bus = self._bus
         bus.mark_dirty()
+        chunk = bus.framer.status_overhead * len(self.ids) + 4096
         try:
             while time.monotonic() < self.deadline_s:
-                dropped = bus._read(STATUS_OVERHEAD * len(self.ids) + 4096, self.deadline_s,
-                                    to_deadline=True)
+                dropped = bus._read(chunk, self.deadline_s, to_deadline=True)
                 bus.counters.flushed_bytes += len(dropped)
         except PortError:
             pass   # a lost port holds nothing to wait for; its next user finds it lost
@@ -288,7 +291,6 @@ class Bus:
             self.port.write(packet)
         except OSError as exc:   # PortError is not an OSError; SimPortDisconnected is
             raise _port_lost(exc) from None
-        self.counters.tx_packets += 1
         return before, time.monotonic()
 
     def _read(self, size: int, deadline_s: float, to_deadline: bool = False) -> bytes:
@@ -337,7 +339,7 @@ class Bus:
         answers still missing need (asking more would wait for the deadline).
         """
         collected = Collected()
-        reply_size = STATUS_OVERHEAD + request.reply_params
+        reply_size = self.framer.status_overhead + request.reply_params
         max_length = max(2 * (request.reply_params + 4) + 8, len(request.packet))
         pos = 0
         while True:
@@ -418,7 +420,7 @@ class Bus:
             if linger is None:
                 linger = self.dirty
             sent_s, written_s = self._send(request.packet)
-            reply_size = STATUS_OVERHEAD + reply_params
+            reply_size = self.framer.status_overhead + reply_params
             deadline = written_s + self.reply_timeout_s(reply_size, 1, len(request.packet))
             want = reply_size + (len(request.packet) if self.echo else 0)
             buffer = bytearray(self._read(want, deadline))
@@ -462,7 +464,7 @@ class Bus:
         """Return {id: model number} of every servo that answers a broadcast ping."""
         request = Request(self.framer.encode(BROADCAST_ID, Instruction.PING),
                           tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS)
-        reply_size = STATUS_OVERHEAD + PING_REPLY_PARAMS
+        reply_size = self.framer.status_overhead + PING_REPLY_PARAMS
         with self.lock:
             _, written_s = self._send(request.packet)
             # Every id may answer: the replies are read to the deadline.
@@ -589,8 +591,7 @@ class Bus:
         id_tuple = tuple(ids)
         request = Request(self._sync_read_packet(address, length, id_tuple, fast), id_tuple,
                           length)
-        expected = (fast_sync_size(length, len(id_tuple)) if fast
-                    else (STATUS_OVERHEAD + length) * len(id_tuple))
+        expected = self._sync_reply_size(length, len(id_tuple), fast)
         self.lock.acquire()
         try:
             sent_s, written_s = self._send(request.packet)
@@ -600,12 +601,17 @@ class Bus:
         deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(request.packet))
         return SyncRead(self, request, length, address, sent_s, deadline, fast, linger)
 
+    def _sync_reply_size(self, length: int, count: int, fast: bool) -> int:
+        """Return the bytes the answers to a sync read of length bytes from count servos take."""
+        if fast:
+            return fast_sync_size(length, count)
+        return (self.framer.status_overhead + length) * count
+
     def _collect_sync(self, pending: SyncRead) -> SyncResult:
         """Collect a sync read's answers (SyncRead.collect, the bus lock held)."""
         ids = pending.ids
         length = pending.length
-        expected = (fast_sync_size(length, len(ids)) if pending.fast
-                    else (STATUS_OVERHEAD + length) * len(ids))
+        expected = self._sync_reply_size(length, len(ids), pending.fast)
         echo_size = len(pending.packet) if self.echo else 0
         echoes = self.counters.echoes
         buffer = self._read(echo_size + expected, pending.deadline_s)
@@ -634,7 +640,7 @@ class Bus:
         length, 0x55, error 0) and pass its CRC; anything else returns None and the collector
         takes the whole buffer.
         """
-        reply_size = STATUS_OVERHEAD + length
+        reply_size = self.framer.status_overhead + length
         if len(buffer) != reply_size * len(ids):
             return None
         key = (ids, length)
@@ -772,7 +778,6 @@ class Bus:
                     self.port.write(packet)
                 except OSError as exc:
                     raise _port_lost(exc) from None
-                self.counters.tx_packets += 1
         return len(packet)
 
 

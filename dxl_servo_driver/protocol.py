@@ -426,7 +426,6 @@ class Framer(Protocol):
     """
 
     status_overhead: int        # bytes of a status packet around its parameters
-    instruction_overhead: int   # bytes of an instruction packet around its parameters
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -440,7 +439,6 @@ class Protocol2Framer:
     """Protocol 2.0 framing (this module's functions), as the bus's Framer."""
 
     status_overhead = STATUS_OVERHEAD
-    instruction_overhead = INSTRUCTION_OVERHEAD
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""

@@ -9,7 +9,7 @@ must stay ordered, the homing offset position mode ignores). Pure: no I/O.
 
 from typing import Mapping
 
-from dxl_servo_driver.models import Item, Model, xm430
+from dxl_servo_driver.models import Item, Model, modes, xm430
 
 # Registers the driver manages itself; a configuration may not set them.
 DRIVER_OWNED = frozenset(
@@ -91,7 +91,7 @@ def check_register_set(values: Mapping[str, int], name: str, value: int, mode: s
             raise ValueError(f'{low} {value} is above {high} ({values[high]})')
         if name == high and value < values[low]:
             raise ValueError(f'{high} {value} is below {low} ({values[low]})')
-    if (name == 'homing_offset' and mode == 'position'
+    if (name == 'homing_offset' and mode in modes.SINGLE_TURN
             and abs(value) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT):
         raise ValueError('position mode ignores a homing offset beyond +-1024 (the manual); '
                          'use extended_position for larger offsets')

@@ -67,7 +67,6 @@ class SerialPort:
 
     def __init__(self, device: str, baud_bps: int) -> None:
         self.device = device
-        self.low_latency = False
         try:
             opened = serial.Serial(device, baud_bps, timeout=0, write_timeout=WRITE_BLOCKED_S,
                                    exclusive=True)
@@ -80,7 +79,6 @@ class SerialPort:
             try:
                 # ASYNC_LOW_LATENCY: the kernel side of a 1 ms latency timer (FTDI adapters).
                 opened.set_low_latency_mode(True)
-                self.low_latency = True
             except (OSError, ValueError, AttributeError, NotImplementedError):
                 pass
             # The duplicate shares the open file: its exclusive lock and non-blocking flag.

@@ -78,7 +78,6 @@ class BlockShape:
         self.tagged_size: int = self.tagged_struct.size
         self.index: dict[str, int] = {name: i for i, name in enumerate(self.names)}
         self.canary_index: int = self.index['status_return_level']
-        self.tick_index: int = self.index['realtime_tick']
 
     def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
         """Return the block's raw values, in FIELDS order."""

@@ -40,7 +40,6 @@ class Task:
         self.not_before_s = not_before_s   # do not start before this time (retry back-off)
         self.finished = threading.Event()
         self.error: Optional[BaseException] = None
-        self.cancelled = False
 
     @property
     def done(self) -> bool:
@@ -71,7 +70,6 @@ class Task:
         """End the task without running its remaining steps."""
         if self.done:
             return
-        self.cancelled = True
         self.error = RuntimeError(reason)
         self._steps.close()
         self.finished.set()

@@ -187,11 +187,6 @@ class FaultEngine:
             self._freeze(self._clock(), duration_s)
             self._changed()
 
-    @property
-    def frozen_until_s(self) -> float:
-        """Return when the current freeze ends (-inf when there was none)."""
-        return self._frozen_until_s
-
     def add_listener(self, listener: Callable[[], None]) -> None:
         """Call listener (under the lock, so it must not block) whenever something changed."""
         with self.cond:

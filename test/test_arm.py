@@ -18,7 +18,7 @@ import pytest
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-SEED = units_for(model_for(1030))
+XM430_UNITS = units_for(model_for(1030))
 JOINTS = {
     'shoulder': {'id': 1, 'operating_mode': 'position'},
     'elbow': {'id': 2, 'operating_mode': 'extended_position'},
@@ -65,7 +65,7 @@ def trajectory(joints: Sequence[str], points: Plan) -> JointTrajectory:
 
 
 def position(h: NodeHarness, name: str) -> float:
-    return SEED.position_to_rad(h.reg(IDS[name], 'present_position'))
+    return XM430_UNITS.position_to_rad(h.reg(IDS[name], 'present_position'))
 
 
 def positions_now(h: NodeHarness) -> Dict[str, float]:
@@ -167,11 +167,11 @@ def test_joint_command_applies_each_array_by_mode(h: NodeHarness) -> None:
                             velocities=[0.0, 1.5, 0.0, 0.0],
                             efforts=[0.0, 0.0, 0.2, 0.4]))
     kt = 4.1 / 2.3
-    h.wait_reg(IDS['shoulder'], 'goal_position', lambda v: v == SEED.position_from_rad(0.3))
-    h.wait_reg(IDS['wheel'], 'goal_velocity', lambda v: v == SEED.velocity_from_rad_s(1.5))
-    h.wait_reg(IDS['hand'], 'goal_current', lambda v: v == SEED.current_from_a(0.2 / kt))
-    h.wait_reg(IDS['wrist'], 'goal_current', lambda v: v == SEED.current_from_a(0.4 / kt))
-    h.wait_reg(IDS['wrist'], 'goal_position', lambda v: v == SEED.position_from_rad(-0.2))
+    h.wait_reg(IDS['shoulder'], 'goal_position', lambda v: v == XM430_UNITS.position_from_rad(0.3))
+    h.wait_reg(IDS['wheel'], 'goal_velocity', lambda v: v == XM430_UNITS.velocity_from_rad_s(1.5))
+    h.wait_reg(IDS['hand'], 'goal_current', lambda v: v == XM430_UNITS.current_from_a(0.2 / kt))
+    h.wait_reg(IDS['wrist'], 'goal_current', lambda v: v == XM430_UNITS.current_from_a(0.4 / kt))
+    h.wait_reg(IDS['wrist'], 'goal_position', lambda v: v == XM430_UNITS.position_from_rad(-0.2))
     # Empty arrays are not given at all.
     assert h.node.arm.joint_command(joint_state(['shoulder'], positions=[0.1])).success
 
@@ -223,12 +223,12 @@ def test_a_gripper_closes_on_an_object_and_holds_it_without_overload(h: NodeHarn
     deadline = time.monotonic() + 3.0
     while time.monotonic() < deadline:
         assert h.reg(sid, 'hardware_error_status') == 0
-        currents.append(abs(SEED.current_to_a(h.reg(sid, 'present_current'))))
+        currents.append(abs(XM430_UNITS.current_to_a(h.reg(sid, 'present_current'))))
         time.sleep(0.05)
     print(f'holding: present current {min(currents):.3f}..{max(currents):.3f} A at a 0.3 A '
           'limit, no hardware error')
     assert max(currents) <= 0.3 * 1.1
-    assert h.reg(sid, 'goal_current') == SEED.current_from_a(0.3)
+    assert h.reg(sid, 'goal_current') == XM430_UNITS.current_from_a(0.3)
     assert claw_state(h, lambda s: True).grasping
     status = h.diagnostics.wait(lambda m: any(s.name.endswith(': claw') for s in m.status))
     values = {kv.key: kv.value for kv in

@@ -23,7 +23,7 @@ from dxl_servo_driver.sim.virtual_bus import configure_servos, GoalTracer
 import pytest
 from test_manager import BAUD, no_tasks, params, read_states, Rig, run_cycles, TapPort
 
-SEED = units_for(model_for(1030))
+XM430_UNITS = units_for(model_for(1030))
 SLOT_ADDRESS = 246   # indirect data 23: after the 22-byte state block on every X table
 _GOALS = {'goal_position': -123456, 'goal_velocity': -321, 'goal_current': -77, 'goal_pwm': 555}
 
@@ -103,9 +103,9 @@ def _command_three_modes(rig: Rig, manager: Manager) -> None:
 
 
 def _assert_three_goals(rig: Rig) -> None:
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.5)
-    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(1.0)
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.2)
+    assert rig.reg(1, 'goal_position') == XM430_UNITS.position_from_rad(0.5)
+    assert rig.reg(2, 'goal_velocity') == XM430_UNITS.velocity_from_rad_s(1.0)
+    assert rig.reg(3, 'goal_current') == XM430_UNITS.current_from_a(0.2)
 
 
 def test_goals_of_three_modes_go_out_in_one_sync_write(rig: Rig) -> None:
@@ -124,7 +124,7 @@ def test_goals_of_three_modes_go_out_in_one_sync_write(rig: Rig) -> None:
     rig.tap.packets.clear()
     manager.write_pending()
     assert [_address_length(p) for p in rig.tap.packets] == [(SLOT_ADDRESS, 2)]
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(-0.1)
+    assert rig.reg(3, 'goal_current') == XM430_UNITS.current_from_a(-0.1)
 
 
 def test_per_register_writes_one_sync_write_per_goal_register(rig: Rig) -> None:
@@ -145,7 +145,7 @@ def test_current_based_position_carries_both_goals(rig: Rig) -> None:
     rig.tap.packets.clear()
     manager.write_pending()
     assert [_address_length(p) for p in rig.tap.packets] == [(SLOT_ADDRESS, 4)]
-    assert rig.reg(3, 'goal_position') == SEED.position_from_rad(0.4)
+    assert rig.reg(3, 'goal_position') == XM430_UNITS.position_from_rad(0.4)
     assert rig.reg(3, 'goal_current') == grip_current
     # A current goal with a position goal of another joint: one write of the whole slot, the
     # position joint repeating its own goal in the bytes it does not need.
@@ -154,9 +154,9 @@ def test_current_based_position_carries_both_goals(rig: Rig) -> None:
     rig.tap.packets.clear()
     manager.write_pending()
     assert [_address_length(p) for p in rig.tap.packets] == [(SLOT_ADDRESS, 6)]
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.15)
-    assert rig.reg(3, 'goal_position') == SEED.position_from_rad(0.4)
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(-0.3)
+    assert rig.reg(3, 'goal_current') == XM430_UNITS.current_from_a(0.15)
+    assert rig.reg(3, 'goal_position') == XM430_UNITS.position_from_rad(0.4)
+    assert rig.reg(1, 'goal_position') == XM430_UNITS.position_from_rad(-0.3)
     # write_register of the goal current: the slot's next write carries that value, not an
     # older one.
     assert manager.write_register('grip', 'goal_current', 100).success
@@ -174,9 +174,9 @@ def test_a_mode_switch_maps_the_slot_to_the_new_mode(rig: Rig) -> None:
     rig.tap.packets.clear()
     manager.write_pending()
     assert [_address_length(p) for p in rig.tap.packets] == [(SLOT_ADDRESS, 4)]
-    assert rig.reg(1, 'goal_velocity') == SEED.velocity_from_rad_s(0.5)
+    assert rig.reg(1, 'goal_velocity') == XM430_UNITS.velocity_from_rad_s(0.5)
     assert rig.reg(1, 'goal_position') == position_goal
-    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(-0.5)
+    assert rig.reg(2, 'goal_velocity') == XM430_UNITS.velocity_from_rad_s(-0.5)
 
 
 def test_a_restarted_servo_gets_its_slot_back(rig: Rig) -> None:
@@ -191,7 +191,7 @@ def test_a_restarted_servo_gets_its_slot_back(rig: Rig) -> None:
     rig.tap.packets.clear()
     manager.write_pending()
     assert [_address_length(p) for p in rig.tap.packets] == [(SLOT_ADDRESS, 2)]
-    assert rig.reg(3, 'goal_current') == SEED.current_from_a(0.1)
+    assert rig.reg(3, 'goal_current') == XM430_UNITS.current_from_a(0.1)
 
 
 def test_a_slot_that_does_not_read_back_is_given_up_for_register_writes(rig: Rig) -> None:
@@ -211,8 +211,8 @@ def test_a_slot_that_does_not_read_back_is_given_up_for_register_writes(rig: Rig
     rig.tap.packets.clear()
     manager.write_pending()
     assert sorted(_address_length(p) for p in rig.tap.packets) == [(116, 4), (SLOT_ADDRESS, 4)]
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.25)
-    assert rig.reg(2, 'goal_velocity') == SEED.velocity_from_rad_s(0.5)
+    assert rig.reg(1, 'goal_position') == XM430_UNITS.position_from_rad(0.25)
+    assert rig.reg(2, 'goal_velocity') == XM430_UNITS.velocity_from_rad_s(0.5)
 
 
 class MixedRig(Rig):

@@ -2,7 +2,7 @@
 The package's layering (ARCHITECTURE.md): ros -> driver -> bus/transport -> protocol/models.
 
 Nothing but the transport registry reaches the simulator; only the node imports rclpy, only
-the serial transport the serial library.
+the serial transport the serial library; no module imports itself through others (a circle).
 """
 
 import ast
@@ -13,7 +13,7 @@ ROS_MODULES = ('rclpy', 'sensor_msgs', 'std_msgs', 'diagnostic_msgs', 'lifecycle
                'rcl_interfaces', 'dxl_servo_driver_msgs', 'builtin_interfaces')
 HARDWARE_MODULES = ('dynamixel_sdk', 'serial')
 # Modules allowed to import each group (paths relative to the package).
-ROS_ALLOWED = {'scan.py'}
+ROS_ALLOWED: set = set()   # modules outside ros/ allowed to import ROS: none
 ROS_PACKAGE = 'ros/'   # the node's parts
 HARDWARE_ALLOWED = {'serial_port.py'}
 
@@ -111,3 +111,59 @@ def test_only_the_transport_registry_reaches_the_simulator() -> None:
     for path in (PACKAGE / 'sim').glob('*.py'):
         for module in package_imports(path):
             assert layer_of(module) in (-1, 0), f'sim/{path.name} imports {module}'
+
+
+def _module_name(path: pathlib.Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix('').parts)
+    if parts[-1] == '__init__':
+        parts.pop()
+    return '.'.join(parts)
+
+
+def _module_graph() -> dict:
+    """Return {module: modules of the package it imports}, submodules named by `from` resolved."""
+    files = {_module_name(path): path for path in PACKAGE.rglob('*.py')}
+    graph = {}
+    for name, path in files.items():
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                edges.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                for alias in node.names:
+                    sub = f'{node.module}.{alias.name}'
+                    edges.add(sub if sub in files else node.module)
+        graph[name] = {edge for edge in edges if edge in files and edge != name}
+    return graph
+
+
+def _circle(graph: dict) -> list:
+    """Return one import circle as a list of modules, or [] when there is none."""
+    state = {}   # module -> 1 on the path being explored, 2 done
+
+    def visit(module: str, path: list) -> list:
+        state[module] = 1
+        for imported in sorted(graph[module]):
+            if state.get(imported) == 1:
+                return path[path.index(imported):] + [imported]
+            if imported not in state:
+                found = visit(imported, path + [imported])
+                if found:
+                    return found
+        state[module] = 2
+        return []
+
+    for module in sorted(graph):
+        if module not in state:
+            found = visit(module, [module])
+            if found:
+                return found
+    return []
+
+
+def test_no_import_circle() -> None:
+    graph = _module_graph()
+    assert len(graph) > 40 and 'dxl_servo_driver.ros.node' in graph
+    assert _circle(graph) == [], ' -> '.join(_circle(graph))
+    # The check finds one where there is one.
+    assert _circle({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': set()}) == ['a', 'b', 'c', 'a']

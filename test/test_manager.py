@@ -21,7 +21,7 @@ from dxl_servo_driver.sim.virtual_bus import configure_servos
 from dxl_servo_driver.transports import SimTransport
 import pytest
 
-SEED = units_for(model_for(1030))
+XM430_UNITS = units_for(model_for(1030))
 SEED_BLOCK = state_block.state_block(model_for(1030), 'present_current')
 # The block's fields by register name (effort is present_current on the XM430 manual's model).
 STATE_NAMES = tuple(SEED_BLOCK.register(name) for name in SEED_BLOCK.names)
@@ -390,7 +390,7 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
     assert rig.reg(1, 'torque_enable') == 1
     # It holds where it is: the goal it had before its restart is not replayed.
     assert abs(rig.reg(1, 'goal_position') - rig.reg(1, 'present_position')) <= 2
-    assert abs(rig.reg(1, 'goal_position') - SEED.position_from_rad(0.3)) > 50
+    assert abs(rig.reg(1, 'goal_position') - XM430_UNITS.position_from_rad(0.3)) > 50
     read_states(manager)
     assert manager.servos['arm'].fresh
 
@@ -410,7 +410,7 @@ def test_command_timeout_zeroes_streamed_goals(rig: Rig) -> None:
     manager.check_command_timeout()
     manager.write_pending()
     assert rig.reg(2, 'goal_velocity') == 0
-    assert rig.reg(1, 'goal_position') == SEED.position_from_rad(0.2)   # position is kept
+    assert rig.reg(1, 'goal_position') == XM430_UNITS.position_from_rad(0.2)   # position is kept
     assert any('goal set to zero' in line for line in rig.logs)
 
 
@@ -496,7 +496,7 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     manager.activate()
     # Three turns and a bit away from where it started.
     target = rig.reg(1, 'present_position') + 3 * 4096 + 500
-    assert manager.command_now('position', ['arm'], [SEED.position_to_rad(target)]).success
+    assert manager.command_now('position', ['arm'], [XM430_UNITS.position_to_rad(target)]).success
     deadline = time.monotonic() + 10.0
     while abs(rig.reg(1, 'present_position') - target) > 10 and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -516,7 +516,7 @@ def test_multi_turn_position_survives_a_restart(rig: Rig) -> None:
     assert rig.reg(1, 'homing_offset') == 0                # kept by the driver, no EEPROM
     assert rig.reg(1, 'torque_enable') == 1
     # A goal in the joint's frame lands where it says.
-    goal = SEED.position_to_rad(target + 100)
+    goal = XM430_UNITS.position_to_rad(target + 100)
     assert manager.command_now('position', ['arm'], [goal]).success
     assert rig.reg(1, 'goal_position') + arm.turn_offset == target + 100
 
@@ -645,4 +645,4 @@ def test_a_horn_at_minus_pi_at_rest_is_not_a_restart(active: Tuple[Rig, Manager]
     read_states(manager)
     arm = manager.servos['arm']
     assert arm.fresh and arm.restarts == 0
-    assert arm.state[0] == 0 and SEED.position_to_rad(arm.state[0]) == -math.pi
+    assert arm.state[0] == 0 and XM430_UNITS.position_to_rad(arm.state[0]) == -math.pi

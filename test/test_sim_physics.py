@@ -13,6 +13,7 @@ TOLERANCE = 0.05
 # The units of the manual's model (the Rig's servo).
 MANUAL = model_for(xm430.MODEL_NUMBER)
 AMPERE_PER_CURRENT_UNIT = MANUAL.current_unit_a
+MOTOR = motor.MANUAL_MOTOR
 
 
 def rpm(velocity_raw: int) -> float:
@@ -33,8 +34,8 @@ def test_no_load_speed_matches_datasheet(volts: float, speed_rpm: float, torque_
     assert rig.reg('present_pwm') == 885
     assert rig.reg('present_input_voltage') == round(volts * 10)
     # The analytic steady state of the model agrees with the simulation.
-    assert motor.rad_s_to_rpm(motor.no_load_speed_rad_s(volts)) == pytest.approx(measured,
-                                                                                 abs=0.3)
+    steady_rpm = motor.rad_s_to_rpm(MOTOR.no_load_speed_rad_s(volts))
+    assert steady_rpm == pytest.approx(measured, abs=0.3)
 
 
 @pytest.mark.parametrize('volts, speed_rpm, torque_nm, current_a', DATASHEET)
@@ -102,7 +103,7 @@ def test_pwm_mode_is_open_loop(goal_pwm: int) -> None:
     assert rig.reg('present_pwm') == goal_pwm
     # Steady state of the motor at that duty: the PWM scales the applied voltage.
     duty_v = abs(goal_pwm) / 885 * 12.0
-    expected = math.copysign(motor.rad_s_to_rpm(motor.no_load_speed_rad_s(duty_v)), goal_pwm)
+    expected = math.copysign(motor.rad_s_to_rpm(MOTOR.no_load_speed_rad_s(duty_v)), goal_pwm)
     assert rpm(rig.reg('present_velocity')) == pytest.approx(expected, abs=0.3)
 
 
@@ -130,7 +131,7 @@ def test_overheat_trips_under_stall_after_long_advance() -> None:
     assert rig.run(0.1) & 0x04 == 0
     errors = rig.dyn.advance(3600.0, rig.mem)  # cheap: the stalled state is jumped analytically
     assert errors & 0x04
-    power_w = motor.heat_power_w((12.0 / motor.RESISTANCE_OHM) ** 2, 12.0)
+    power_w = MOTOR.heat_power_w((12.0 / motor.RESISTANCE_OHM) ** 2, 12.0)
     expected_c = 25.0 + motor.THERMAL_RESISTANCE_C_W * power_w
     assert rig.dyn.temperature_c == pytest.approx(expected_c, abs=0.5)
     assert rig.reg('present_temperature') == round(rig.dyn.temperature_c)

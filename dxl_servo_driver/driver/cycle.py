@@ -11,6 +11,7 @@ does not answer well keeps fresh False: left out of what is published, never giv
 or invented value.
 """
 
+from dataclasses import dataclass
 import struct
 import threading
 import time
@@ -36,6 +37,7 @@ SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, d
 _PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
 
+@dataclass(eq=False)
 class ReadInFlight:
     """
     The cycle's sync read on the wire, owning the manager's lock (and the bus's) until it ends.
@@ -46,14 +48,12 @@ class ReadInFlight:
     neither (publishing the last cycle).
     """
 
-    def __init__(self, lock: threading.RLock, pending: SyncRead, stamp: float, full: bool,
-                 length: int) -> None:
-        self._lock = lock
-        self.pending = pending
-        self.stamp = stamp
-        self.full = full
-        self.length = length
-        self.ended = False
+    _lock: threading.RLock
+    pending: SyncRead
+    stamp: float
+    full: bool
+    length: int
+    ended: bool = False
 
     @classmethod
     def start(cls, lock: threading.RLock,
@@ -111,7 +111,6 @@ class Cycle:
         self.read_failures = 0
         self.retries = 0
         self.retry_successes = 0
-        self.last_read_time = 0.0
         # How often the whole state block (health part too) is read; the node sets it from
         # state_rate and the 1 Hz diagnostics.
         self.health_period_s = 0.1
@@ -224,7 +223,6 @@ class Cycle:
         self._take_results(result, reading.stamp, received)
         self._linger_next = self._stale.refused > refused
         self.cycles += 1
-        self.last_read_time = reading.stamp
         return reading.stamp
 
     def _judge_fast(self, fast_parts: int, result: SyncResult) -> None:

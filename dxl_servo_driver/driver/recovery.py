@@ -16,6 +16,7 @@ from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.servo import IDX_CANARY, IDX_HW_ERROR, Servo, Throttle
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommTimeout, CorruptReply, PortError, StatusError
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import Steps, Task
 
 BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
@@ -37,8 +38,7 @@ class Recovery:
         self._tasks = ctx.tasks
         self._port = ctx.port
         self._clock = ctx.clock
-        self._info = ctx.log.info
-        self._warn = ctx.log.warn
+        self._log = ctx.log
         self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
         self.recoveries = 0
 
@@ -50,8 +50,8 @@ class Recovery:
         # The task first: whoever sees the restart counted (another thread) sees it restoring.
         self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()))
         servo.restarts += 1
-        self._warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
-                   'restoring its configuration and mode; it will hold where it is')
+        self._log.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
+                       'restoring its configuration and mode; it will hold where it is')
 
     def restore(self, servo: Servo, last_joint_pulses: Optional[int]) -> Steps:
         """
@@ -68,7 +68,7 @@ class Recovery:
         yield from self._setup.apply_configuration(servo)
         present = self._link.read(servo, 'present_position')
         yield
-        if servo.mode == 'position':
+        if servo.mode in modes.SINGLE_TURN:
             servo.turn_offset = 0
         elif last_joint_pulses is not None:
             servo.turn_offset = servo.units.kept_turns(last_joint_pulses, present)
@@ -145,12 +145,13 @@ class Recovery:
         self._cycle.want_full()
         self._cycle.refresh()
         if task.kind == 'restore':
-            self._info(f'joint {servo.name!r}: restored after its restart, holding where it is')
+            self._log.info(f'joint {servo.name!r}: restored after its restart, holding where '
+                           'it is')
         elif task.kind == 'recover':
             servo.health_time = 0.0
-            self._info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+            self._log.info(f'joint {servo.name!r}: recovered, configuration and torque restored')
         elif task.kind == 'rejoin':
-            self._info(f'joint {servo.name!r}: answering again')
+            self._log.info(f'joint {servo.name!r}: answering again')
 
     def task_failed(self, task: Task, exc: Exception) -> None:
         """Try a failed restore or probe again later; a lost port propagates to the cycle."""
@@ -186,8 +187,8 @@ class Recovery:
             servo.recoveries += 1
             self.recoveries += 1
             errors = ', '.join(servo.model.decode_hardware_errors(state[IDX_HW_ERROR]))
-            self._warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
-                       f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
+            self._log.warn(f'joint {servo.name!r} (id {servo.servo_id}): hardware error '
+                           f'{errors}: rebooting it to recover (recovery {servo.recoveries})')
             self.start(servo, 'recover', self.reboot(servo))
 
     def start_reboots(self, servos: List[Servo]) -> List[Task]:

@@ -15,7 +15,7 @@ from dxl_servo_driver import tasks
 from dxl_servo_driver.config import JointConfig
 from dxl_servo_driver.driver.clock import TickClock
 from dxl_servo_driver.errors import Refused
-from dxl_servo_driver.models import xm430
+from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.units import Units, units_for
 from dxl_servo_driver.state_block import GoalSlot, StateBlock
 from dxl_servo_driver.tasks import Steps
@@ -104,7 +104,7 @@ class Servo:
 
     def goal_position_range(self) -> Tuple[int, int]:
         """Return the Goal Position values taken now: its limits (position mode), else all."""
-        if self.mode == 'position' and self.limits:
+        if self.mode in modes.SINGLE_TURN and self.limits:
             return self.limits['min_position_limit'], self.limits['max_position_limit']
         return -xm430.EXTENDED_POSITION_LIMIT, xm430.EXTENDED_POSITION_LIMIT
 

@@ -35,8 +35,7 @@ class Setup:
         self._roster = ctx.roster
         self._link = ctx.link
         self._clock = ctx.clock
-        self._info = ctx.log.info
-        self._warn = ctx.log.warn
+        self._log = ctx.log
 
     # configure ------------------------------------------------------------------------------
     def configure(self) -> None:
@@ -59,12 +58,12 @@ class Setup:
             servo.online = True
             errors = self._link.read(servo, 'hardware_error_status')
             if errors:
-                self._warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
-                           f'latched: {", ".join(servo.model.decode_hardware_errors(errors))} '
-                           '(a reboot clears them)')
-            self._info(f'found joint {servo.name!r}: id {servo.servo_id}, {servo.model.name} '
-                       f'(model {model_number}), firmware {servo.firmware_version}, '
-                       f'mode {servo.mode}')
+                self._log.warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
+                               f'latched: {", ".join(servo.model.decode_hardware_errors(errors))} '
+                               '(a reboot clears them)')
+            self._log.info(f'found joint {servo.name!r}: id {servo.servo_id}, {servo.model.name} '
+                           f'(model {model_number}), firmware {servo.firmware_version}, '
+                           f'mode {servo.mode}')
         config = self._ctx.config
         for servo, failure in missing:
             message = (f'joint {servo.name!r}: servo id {servo.servo_id} did not answer '
@@ -72,7 +71,7 @@ class Setup:
                        f'({failure}); check the id, the baud rate, the power and the cable')
             if config.missing_servo == 'refuse':
                 raise ManagerError(message)
-            self._warn(message + '; starting without it (missing_servo: skip)')
+            self._log.warn(message + '; starting without it (missing_servo: skip)')
         if not self._roster.active():
             raise ManagerError('no configured servo answered')
 
@@ -117,7 +116,7 @@ class Setup:
                 changed.append(f'{name}={value}')
                 yield
         if changed:
-            self._info(f'joint {servo.name!r}: EEPROM written: {", ".join(changed)}')
+            self._log.info(f'joint {servo.name!r}: EEPROM written: {", ".join(changed)}')
         servo.homing_offset = link.read(servo, 'homing_offset')
         yield
         yield from self._apply_ram(servo)
@@ -241,9 +240,9 @@ class Setup:
                 return
             servo.goal_slot = None
             servo.slot_refused = True
-            self._warn(f'joint {servo.name!r}: goals written through its indirect goal slot did '
-                       f'not arrive ({"; ".join(wrong)}); its goals are written register by '
-                       'register from now on')
+            self._log.warn(f'joint {servo.name!r}: goals written through its indirect goal slot '
+                           f'did not arrive ({"; ".join(wrong)}); its goals are written register '
+                           'by register from now on')
         for name, value in goals.items():
             link.write(servo, name, value)
             yield
@@ -285,7 +284,7 @@ class Setup:
         after = link.read(servo, 'present_position')
         yield
         # A mode change re-initialises Present Position within one turn (the XM430 manual).
-        if mode == 'position':
+        if mode in modes.SINGLE_TURN:
             servo.turn_offset = 0
             yield from self._single_turn_homing(servo)
         else:
@@ -320,7 +319,7 @@ class Setup:
 
 def keep_turns(servo: Servo, before_raw: int, after_raw: int) -> None:
     """Keep the joint's position continuous after the servo re-initialised its position."""
-    if servo.mode == 'position':
+    if servo.mode in modes.SINGLE_TURN:
         servo.turn_offset = 0
         return
     servo.turn_offset += servo.units.kept_turns(before_raw, after_raw)

@@ -60,6 +60,9 @@ BY_NUMBER: Dict[int, Mode] = {mode.number: mode for mode in MODES}
 NAMES: Tuple[str, ...] = tuple(BY_NAME)
 POSITION_MODES: FrozenSet[str] = frozenset(mode.name for mode in MODES if mode.position)
 POSITION_NUMBERS: FrozenSet[int] = frozenset(mode.number for mode in MODES if mode.position)
+# Single-turn: goals within the position limits, Present Position within one turn (no turns
+# kept by the driver), and a Homing Offset beyond +-1024 ignored (the XM430 manual).
+SINGLE_TURN: FrozenSet[str] = frozenset(mode.name for mode in MODES if mode.single_turn)
 
 
 def numbers(*names: str) -> Dict[str, int]:

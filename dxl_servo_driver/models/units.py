@@ -101,17 +101,9 @@ class Units:
         """Return a voltage register value in volts."""
         return raw * self.v_per_voltage_raw
 
-    def voltage_from_v(self, volts: float) -> int:
-        """Return the voltage register value nearest to a voltage."""
-        return int(round(volts / self.v_per_voltage_raw))
-
     def effort_to_nm(self, raw: int) -> float:
         """Return the effort register's value (current or load) as a torque in N*m."""
         return raw * self.effort_nm_per_raw
-
-    def command_kind(self, kind: str) -> CommandKind:
-        """Return a goal kind (position, velocity, current, pwm); KeyError if it has none."""
-        return self.kinds[kind]
 
 
 def units_for(model: Model, torque_constant_nm_per_a: float | None = None) -> Units:

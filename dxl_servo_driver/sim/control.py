@@ -245,33 +245,26 @@ def execute(command: Command, bus: ControlledBus,
             text = stats_line() if stats_line is not None else 'replies=0'
             return f'ok stats {text}'
         assert sid is not None  # every other command has an id (parse guarantees it)
-        if name in ('drop', 'corrupt'):
+        valued = {'drop': bus.set_drop, 'corrupt': bus.set_corrupt, 'load': bus.set_load,
+                  'voltage': bus.set_voltage}
+        if name in valued:
             assert command.value is not None
-            setter = bus.set_drop if name == 'drop' else bus.set_corrupt
-            setter(sid, command.value)
+            valued[name](sid, command.value)
             return f'ok {name} {sid} {command.value:g}'
         if name == 'error':
             assert command.text is not None
             bus.inject_error(sid, command.text)
             return f'ok error {sid} {command.text}'
+        if name == 'tick':
+            assert command.value is not None
+            bus.set_tick(sid, int(command.value))
+            return f'ok tick {sid} {int(command.value)}'
         if name == 'powercycle':
             bus.powercycle(sid)
         elif name == 'unplug':
             bus.unplug(sid)
         elif name == 'plug':
             bus.plug(sid)
-        elif name == 'load':
-            assert command.value is not None
-            bus.set_load(sid, command.value)
-            return f'ok load {sid} {command.value:g}'
-        elif name == 'voltage':
-            assert command.value is not None
-            bus.set_voltage(sid, command.value)
-            return f'ok voltage {sid} {command.value:g}'
-        elif name == 'tick':
-            assert command.value is not None
-            bus.set_tick(sid, int(command.value))
-            return f'ok tick {sid} {int(command.value)}'
         elif name == 'get':
             register = _register_of(command, bus, sid)
             return f'ok get {sid} {register}={bus.read_register(sid, register)}'

@@ -47,6 +47,10 @@ velocity_profile.py):
   torque of the simulated motor at the present supply, in 0.1 % and within +-100 %, so a full-PWM
   stall reads 1000 at any supply. They have no Goal Current nor Current Limit: nothing but the
   PWM limits their current.
+
+At ~600 lines the module is one servo's physics: advance() keeps its state in local variables
+through the 1 ms loop (it runs a thousand times per simulated second per servo), which is why
+it is long and why it is not split.
 """
 
 import math
@@ -72,7 +76,6 @@ OVERLOAD_CURRENT_FRACTION = 0.5
 MODE_CURRENT = modes.BY_NAME['current'].number
 MODE_VELOCITY = modes.BY_NAME['velocity'].number
 MODE_POSITION = modes.BY_NAME['position'].number
-MODE_EXTENDED_POSITION = modes.BY_NAME['extended_position'].number
 MODE_CURRENT_BASED_POSITION = modes.BY_NAME['current_based_position'].number
 MODE_PWM = modes.BY_NAME['pwm'].number
 POSITION_MODES = modes.POSITION_NUMBERS
@@ -148,6 +151,21 @@ def _clamp_int(value: float, low: int, high: int) -> int:
     if value > high:
         return high
     return int(round(value))
+
+
+def _integrated(integral: float, error: float, demand: float, gain: float,
+                out_limit: float) -> float | None:
+    """
+    Return a PI integral after this step's error, or None when it does not move.
+
+    Conditional integration: not while the output saturates in the error's direction, and
+    bounded so the integral term alone never exceeds the output limit (no wind-up).
+    """
+    saturated = abs(demand) > out_limit
+    if gain == 0.0 or error == 0.0 or (saturated and (error > 0.0) == (demand > 0.0)):
+        return None
+    bound = out_limit / gain
+    return max(-bound, min(bound, integral + error))
 
 
 class ServoDynamics:
@@ -430,12 +448,9 @@ class ServoDynamics:
                     demand = (r_ohm * target_a + ke * self._predict_omega(
                         omega, target_a, friction, c1)) / volts_eff * full
                 saturated = abs(demand) > out_limit
-                if kpi != 0.0 and error != 0.0 and not (
-                        saturated and (error > 0.0) == (demand > 0.0)):
-                    pos_integral += error
-                    bound = out_limit / kpi
-                    pos_integral = max(-bound, min(bound, pos_integral))
-                    integral_moved = True
+                moved = _integrated(pos_integral, error, demand, kpi, out_limit)
+                if moved is not None:
+                    pos_integral, integral_moved = moved, True
                 duty = max(-out_limit, min(out_limit, demand)) / full
             elif mode == MODE_VELOCITY:
                 if vel_traj != goal_velocity:
@@ -444,12 +459,9 @@ class ServoDynamics:
                 error = vel_traj - omega * unit_per_rad_s
                 demand = kvp * error + kvi * vel_integral
                 saturated = abs(demand) > out_limit
-                if kvi != 0.0 and error != 0.0 and not (
-                        saturated and (error > 0.0) == (demand > 0.0)):
-                    vel_integral += error
-                    bound = out_limit / kvi
-                    vel_integral = max(-bound, min(bound, vel_integral))
-                    integral_moved = True
+                moved = _integrated(vel_integral, error, demand, kvi, out_limit)
+                if moved is not None:
+                    vel_integral, integral_moved = moved, True
                 duty = max(-out_limit, min(out_limit, demand)) / full
             else:
                 duty = 0.0

@@ -163,28 +163,3 @@ def motor_for(model: Model) -> Motor:
         fitted = fit_motor(model.physics.gear_ratio, model.physics.nominal)
     _MOTORS[id(model)] = (model, fitted)
     return fitted
-
-
-def stall_current_a(volts: float) -> float:
-    """Steady current of the manual's motor with the horn held still at full duty."""
-    return MANUAL_MOTOR.stall_current_a(volts)
-
-
-def stall_torque_nm(volts: float) -> float:
-    """Torque the manual's motor delivers to a load holding the horn still at full duty."""
-    return MANUAL_MOTOR.stall_torque_nm(volts)
-
-
-def no_load_speed_rad_s(volts: float) -> float:
-    """Steady free-running speed of the manual's motor at full duty."""
-    return MANUAL_MOTOR.no_load_speed_rad_s(volts)
-
-
-def heat_power_w(current_sq_a2: float, volts: float) -> float:
-    """Heat dissipated by the manual's motor: i^2 R plus the standby electronics."""
-    return MANUAL_MOTOR.heat_power_w(current_sq_a2, volts)
-
-
-def thermal_step(temperature_c: float, ambient_c: float, power_w: float, dt_s: float) -> float:
-    """Exact first-order response of the manual's thermal mass over dt_s at constant power."""
-    return MANUAL_MOTOR.thermal_step(temperature_c, ambient_c, power_w, dt_s)
