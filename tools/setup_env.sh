@@ -45,6 +45,33 @@ else
   colcon=("$py" -m colcon)
 fi
 
+# control_msgs (the MoveIt actions' types): a ROS 2 install has it (package.xml; rosdep installs
+# ros-jazzy-control-msgs), PyPI has no wheel of it. Here the stand-in in compat/control_msgs, with
+# the real package's type hashes (test/test_control_msgs.py), is built into .venv only, and only
+# when no control_msgs is importable without it.
+compat=.venv/ros_compat
+if [ "$mode" = ros ]; then
+  if ! python3 -c 'import control_msgs.action' 2>/dev/null; then
+    say 'control_msgs is missing: sudo apt install ros-jazzy-control-msgs (or rosdep install --from-paths . -y)'
+    exit 1
+  fi
+elif [ -e "$compat/.build-stamp" ] || ! "$py" -c 'import control_msgs.action' 2>/dev/null; then
+  if [ ! -e "$compat/.build-stamp" ] || [ -n "$(find compat/control_msgs -newer "$compat/.build-stamp" -print -quit)" ]; then
+    mkdir -p log
+    say 'colcon build control_msgs (the stand-in, into .venv: PyPI has no control_msgs)'
+    "${colcon[@]}" build --base-paths compat/control_msgs --build-base build/ros_compat \
+      --install-base "$compat" --merge-install --event-handlers console_cohesion- summary+ \
+      --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$py" >log/colcon-control-msgs.txt 2>&1 \
+      || { tail -n 60 log/colcon-control-msgs.txt; say 'control_msgs build failed (log/colcon-control-msgs.txt)'; exit 1; }
+    touch "$compat/.build-stamp"
+    rm -f install/.build-stamp   # install/setup.bash must chain the new prefix
+  fi
+  set +u
+  # shellcheck disable=SC1091
+  . "$compat/local_setup.bash"
+  set -u
+fi
+
 # Rebuild only when a package's inputs are newer than the last successful build.
 stamp=install/.build-stamp
 inputs=(package.xml setup.py setup.cfg resource config launch udev msg_defs requirements)
