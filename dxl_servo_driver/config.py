@@ -114,8 +114,16 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('recovery_interval', float, 5.0,
               'Minimum time between two recovery reboots of the same servo.', 's', 0.1, 3600.0),
     ParamSpec('goal_tolerance', float, 0.05,
-              'A trajectory whose joints end farther than this from its last point (0.5 s after '
-              'its end) is reported (log and /diagnostics).', 'rad', 0.0, 10.0, runtime=True),
+              'How close to its last point each joint of a trajectory must come (within '
+              'goal_time_tolerance after it) for the trajectory to succeed; farther is reported '
+              '(log, /diagnostics, the action result). 0: not checked. A joint may set its own.',
+              'rad', 0.0, 10.0, runtime=True),
+    ParamSpec('goal_time_tolerance', float, 0.5,
+              'How long after its last point a trajectory may take to come within its goal '
+              'tolerances (an action goal may say otherwise).', 's', 0.0, 60.0, runtime=True),
+    ParamSpec('action_monitor_rate', float, 20.0,
+              'Rate of the feedback of follow_joint_trajectory goals.', 'Hz',
+              1.0, 1000.0, runtime=True),
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
               'timer in the executor. See the README benchmark.', choices=('thread', 'timer')),
@@ -150,6 +158,13 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               'stall current of the model the servo answered with (the XM430 manual: 4.1 N*m '
               'at 2.3 A = 1.783); `ros2 param get` shows the value in use once configured.',
               'N*m/A', shown="the model's datasheet"),
+    ParamSpec('path_tolerance', float, 0.0,
+              'How far the joint may be from the setpoint while a trajectory runs before it '
+              'ends and holds (an action goal: PATH_TOLERANCE_VIOLATED; the goal may say '
+              'otherwise). 0: not checked.', 'rad', 0.0, 10.0),
+    ParamSpec('goal_tolerance', float, 0.0,
+              "This joint's goal tolerance for trajectories (see the top-level goal_tolerance, "
+              'which 0 leaves in force).', 'rad', 0.0, 10.0),
     ParamSpec('gripper', bool, False,
               'A gripper (current_based_position only): ~/gripper commands, grasp detection.'),
     ParamSpec('gripper_open', float, 0.0, 'The position of ratio 0 in ~/gripper commands.',
@@ -180,6 +195,9 @@ class JointConfig:
     gripper: bool = False
     gripper_open: float = 0.0
     gripper_closed: float = 0.0
+    # Trajectory tolerances of this joint (rad); 0: path not checked, goal the top-level one.
+    path_tolerance: float = 0.0
+    goal_tolerance: float = 0.0
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
@@ -209,6 +227,8 @@ class DriverConfig:
     hardware_error_recovery: bool
     recovery_interval: float
     goal_tolerance: float
+    goal_time_tolerance: float
+    action_monitor_rate: float
     temperature_warn: float
     temperature_error: float
     voltage_low: float
@@ -355,7 +375,8 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         value = _check_type(key, params[key], int)
         registers.append((register, value))
     joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
-                        gripper, ends[0], ends[1])
+                        gripper, ends[0], ends[1], _joint_value(params, name, 'path_tolerance'),
+                        _joint_value(params, name, 'goal_tolerance'))
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)

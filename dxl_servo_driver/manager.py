@@ -24,7 +24,7 @@ from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.context import Context, Logs, Stats
-from dxl_servo_driver.driver.cycle import Cycle
+from dxl_servo_driver.driver.cycle import Cycle, SILENT_AFTER_FAILURES
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.link import Link
 from dxl_servo_driver.driver.port_watch import PortWatch
@@ -322,6 +322,22 @@ class Manager:
             self._recovery.recover_hardware_errors()
 
     # commands and services ----------------------------------------------------------------
+    def joint_trouble(self, name: str) -> str:
+        """Return why a joint cannot follow goals now ('' when it can): it ends a trajectory."""
+        servo = self.servos.get(name)
+        if servo is None or not servo.online:
+            return 'is not on the bus'
+        if self._ctx.port.lost:
+            return f'cannot be driven: the port is lost ({self._ctx.port.error})'
+        if servo.name in self.tasks:
+            return f'is {servo.status or "busy"}'
+        if servo.consecutive_failures >= SILENT_AFTER_FAILURES:
+            return f'stopped answering ({servo.consecutive_failures} reads in a row missed)'
+        if servo.state is not None and servo.state[IDX_HW_ERROR]:
+            errors = ', '.join(servo.model.decode_hardware_errors(servo.state[IDX_HW_ERROR]))
+            return f'latched a hardware error ({errors}): its torque is off'
+        return ''
+
     def check_goals(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Validate and convert goals (Result.value: the goals); nothing is queued."""
         try:

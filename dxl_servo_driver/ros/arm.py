@@ -10,7 +10,7 @@ written by the next cycle.
 """
 
 import time
-from typing import Any, Dict, List, Optional, Protocol, Tuple
+from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver import trajectory as traj
@@ -26,6 +26,7 @@ class Host(Protocol):
     """What the arm needs of the node."""
 
     manager: Manager
+    config: cfg.DriverConfig
 
     def get_logger(self) -> Any:
         """Return the node's logger (rclpy Node)."""
@@ -50,8 +51,20 @@ class Arm:
 
     # trajectories ---------------------------------------------------------------------------
     def _present_rad(self, name: str) -> Optional[float]:
+        # The last position read, fresh or not: where a joint holds when a trajectory ends.
         servo = self._host.manager.servos.get(name)
-        return servo.present_rad() if servo is not None else None
+        if servo is None or servo.state is None:
+            return None
+        return servo.position_rad(servo.state[IDX_POSITION])
+
+    def _sense(self, name: str) -> Optional[Tuple[float, float]]:
+        # This cycle's sample only: tolerances and feedback never judge a stale one.
+        servo = self._host.manager.servos.get(name)
+        if servo is None or servo.state is None or not servo.fresh:
+            return None
+        state = servo.state
+        return (servo.position_rad(state[IDX_POSITION]),
+                servo.units.velocity_to_rad_s(state[IDX_VELOCITY]))
 
     def limits(self) -> Dict[str, traj.Limits]:
         """Return what a trajectory is checked against: each joint's mode and range (rad)."""
@@ -62,46 +75,66 @@ class Arm:
                                              servo.position_rad(high), servo.online)
         return limits
 
-    def submit_trajectory(self, msg: Any) -> Result:
-        """Validate a JointTrajectory whole and start it at its stamp (now if unstamped)."""
+    def trajectory_of(self, msg: Any, now_s: Optional[float] = None) -> traj.Trajectory:
+        """
+        Return a JointTrajectory validated whole, starting at its stamp (now if unstamped).
+
+        Raises TrajectoryError (TrajectoryJointsError for its joints) saying what is wrong.
+        """
         points = [traj.Point(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
                              tuple(p.positions), tuple(p.velocities)) for p in msg.points]
+        start_s = time.monotonic() if now_s is None else now_s
         stamp = msg.header.stamp
-        start_s = time.monotonic()
         if stamp.sec or stamp.nanosec:
             # The stamp is on the node's clock: the same distance from now on the cycle's.
             now_ns = self._host.get_clock().now().nanoseconds
             start_s += (stamp.sec * 10 ** 9 + stamp.nanosec - now_ns) * 1e-9
+        return traj.validate(list(msg.joint_names), points, self.limits(), start_s)
+
+    def default_tolerances(self, joints: Sequence[str]) -> traj.Tolerances:
+        """Return the tolerances the parameters give these joints (path, goal, goal time)."""
+        config = self._host.config
+        zeros = (0.0,) * len(joints)
+        return traj.Tolerances(
+            tuple(config.joint(name).path_tolerance for name in joints), zeros,
+            tuple(config.joint(name).goal_tolerance or config.goal_tolerance for name in joints),
+            zeros, config.goal_time_tolerance)
+
+    def submit_trajectory(self, msg: Any) -> Result:
+        """Validate a JointTrajectory whole and start it at its stamp (now if unstamped)."""
         try:
-            trajectory = traj.validate(list(msg.joint_names), points, self.limits(), start_s)
+            trajectory = self.trajectory_of(msg)
         except BadRequest as exc:
             return Result(False, str(exc))
+        trajectory.label = 'a ~/joint_trajectory message'
+        trajectory.tolerances = self.default_tolerances(trajectory.joints)
         self.trajectories.submit(trajectory)
-        return Result(True, f'trajectory of {len(points)} points accepted')
+        return Result(True, f'trajectory of {len(trajectory.points)} points accepted')
 
     def prepare_goals(self, now_s: float) -> None:
         """Queue this cycle's trajectory goals (called by the cycle before its write)."""
-        goals = self.trajectories.step(now_s)
+        manager = self._host.manager
+        goals = self.trajectories.step(now_s, self._sense, manager.joint_trouble)
         if not goals:
             return
-        result = self._host.manager.command('position', list(goals), list(goals.values()))
+        result = manager.command('position', list(goals), list(goals.values()))
         if not result.success:
-            # A joint went away (recovering, port lost): the rest of the path is not run blind.
-            self.trajectories.cancel()
-            self._host.get_logger().error(f'trajectory aborted: {result.message}')
+            # Whatever refused them (the trouble check ends the usual cases first), the rest of
+            # the path is not run blind.
+            self.trajectories.cancel(why=f'its goals were refused: {result.message}')
 
-    def cancel(self) -> None:
-        """Drop every trajectory (the cycle stops)."""
-        self.trajectories.cancel()
+    def cancel(self, why: str = 'the bus cycle stopped') -> None:
+        """End every trajectory as aborted (the cycle stops: deactivate, error, shutdown)."""
+        self.trajectories.cancel(why=why)
 
     def _trajectory_ended(self, outcome: traj.Outcome) -> None:
         log = self._host.get_logger()
-        if outcome.beyond:
-            joints = ', '.join(f'{name} {error:.3f} rad' for name, error in outcome.beyond)
-            log.warning(f'trajectory ended beyond goal_tolerance '
-                        f'{self.trajectories.tolerance_rad:g} rad: {joints}')
-        else:
+        if outcome.how == traj.SUCCEEDED:
             log.info(f'trajectory done (final error {outcome.worst_rad:.4f} rad)')
+        elif outcome.how in (traj.PREEMPTED, traj.CANCELED):
+            log.info(f'trajectory {outcome.message}')
+        else:
+            log.warning(f'trajectory ended: {outcome.message}')
 
     # commands -------------------------------------------------------------------------------
     def _queue_all(self, goals: List[Tuple[str, List[str], List[float]]]) -> Result:

@@ -18,6 +18,7 @@ from dxl_servo_driver import config as cfg
 from dxl_servo_driver.errors import DriverError, Interrupted
 from dxl_servo_driver.manager import Manager, ManagerError, open_transport, PortFactory
 from dxl_servo_driver.ros import parameters
+from dxl_servo_driver.ros.actions import Actions
 from dxl_servo_driver.ros.arm import Arm
 from dxl_servo_driver.ros.cycle import CycleRunner
 from dxl_servo_driver.ros.diagnostics import diagnostics
@@ -70,6 +71,8 @@ class DriverNode(LifecycleNode):
         self._active = False
         self._shut_down = False
         self.arm = Arm(self, self.config)
+        # MoveIt's actions, on a node and executor of their own (ros/actions.py says why).
+        self.actions = Actions(self)
         self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
                                    self.arm.prepare_goals)
         self._take_rates(self.config)
@@ -165,6 +168,8 @@ class DriverNode(LifecycleNode):
                 self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
             elif name == 'goal_tolerance':
                 self.arm.trajectories.tolerance_rad = value
+            elif name in ('goal_time_tolerance', 'action_monitor_rate'):
+                pass   # read from self.config by each new trajectory or goal
             else:
                 self._thresholds[name] = value
         return SetParametersResult(successful=True)
@@ -286,7 +291,7 @@ class DriverNode(LifecycleNode):
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Stop the cycle; torque off if torque_off_on_shutdown (ERROR after a cycle failure)."""
-        self._stop_cycle()
+        self._stop_cycle('the driver was deactivated')
         self._torque_off_and_say('deactivated')
         if self.cycle_failure is not None:
             return TransitionCallbackReturn.ERROR
@@ -305,7 +310,7 @@ class DriverNode(LifecycleNode):
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         """After a failure: the cycle stopped, torque off, port closed; unconfigured."""
-        self._stop_cycle()
+        self._stop_cycle('the driver went to its error state')
         if self.manager.bus is not None:
             self._torque_off_and_say('error')
         self.manager.close()
@@ -321,10 +326,10 @@ class DriverNode(LifecycleNode):
                 self.destroy_lifecycle_publisher(publisher)
         self.joint_states_pub = self.servo_states_pub = None
 
-    def _stop_cycle(self) -> None:
+    def _stop_cycle(self, why: str) -> None:
         self._active = False
         self._runner.stop()
-        self.arm.cancel()
+        self.arm.cancel(why)
 
     def _torque_off(self) -> str:
         """
@@ -357,7 +362,7 @@ class DriverNode(LifecycleNode):
             return
         self._shut_down = True
         self.stop_requested.set()
-        self._stop_cycle()
+        self._stop_cycle('the driver shut down')
         if self.manager.bus is None:
             self.manager.close()
             return
@@ -371,6 +376,13 @@ class DriverNode(LifecycleNode):
         else:
             self.get_logger().info(f'stopped: torque left on (torque_off_on_shutdown is false), '
                                    f'{port}')
+
+    def destroy_node(self) -> None:
+        """Stop the action servers with the node (their results sent first)."""
+        actions = getattr(self, 'actions', None)   # None: the constructor failed before
+        if actions is not None:
+            actions.close()
+        super().destroy_node()
 
     def start(self) -> None:
         """With autostart, configure and activate; StartupFailure when that fails."""

@@ -90,7 +90,8 @@ def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
     return {'id': joint.servo_id, 'operating_mode': joint.operating_mode,
             'model': joint.model.name if joint.model is not None else '',
             'torque_constant': joint.torque_constant_nm_per_a, 'gripper': joint.gripper,
-            'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed}
+            'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed,
+            'path_tolerance': joint.path_tolerance, 'goal_tolerance': joint.goal_tolerance}
 
 
 def coerce(params: List[Parameter]) -> List[Parameter]:

@@ -1,0 +1,402 @@
+"""
+FollowJointTrajectory as MoveIt sends it, through real rclpy action clients.
+
+The node runs on the simulated bus at the wire's timing (every byte takes its time at 1 Mbps).
+
+What is checked is what a MoveIt user sees: the status and error_code of each result, the
+error_string naming the cause, feedback at its rate, and where the simulated servos really were
+(their own registers, not the driver's report) at every point, at the end, after a cancel.
+"""
+
+import math
+import time
+from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
+
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
+from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.units import units_for
+from dxl_servo_driver.sim.port import SimPortHandler
+from dxl_servo_driver.transports import open_transport, SimTransport, Transport
+from node_harness import NodeHarness, sim_params
+import pytest
+from rclpy.action import ActionClient
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+Result = FollowJointTrajectory.Result
+XM430_UNITS = units_for(model_for(1030))
+ARM = ('j1', 'j2', 'j3', 'j4', 'j5', 'j6')
+JOINTS: Dict[str, Dict[str, Any]] = {
+    name: {'id': index + 1, 'operating_mode': 'position'} for index, name in enumerate(ARM)}
+JOINTS['j2']['operating_mode'] = 'extended_position'
+JOINTS['wheel'] = {'id': 7, 'operating_mode': 'velocity'}
+IDS = {name: keys['id'] for name, keys in JOINTS.items()}
+
+
+def wire_transport(config: Any) -> Transport:
+    """`port: sim`, each reply taking its time on the wire (no instant replies)."""
+    simulator = open_transport(config).simulator   # type: ignore[attr-defined]
+    return SimTransport(simulator, lambda: SimPortHandler(simulator, 'sim', config.baud_rate,
+                                                          timing='wire'))
+
+
+def arm_harness(**top: Any) -> NodeHarness:
+    harness = NodeHarness(sim_params(JOINTS, loop_rate=100.0, **top), port_factory=wire_transport)
+    harness.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+    return harness
+
+
+@pytest.fixture(scope='module')
+def h() -> Iterator[NodeHarness]:
+    with arm_harness() as harness:
+        yield harness
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f'{what}: not within {timeout_s} s'
+        time.sleep(0.005)
+
+
+def sim_rad(h: NodeHarness, name: str) -> float:
+    """Where the simulated servo is: its Present Position register (rad)."""
+    return XM430_UNITS.position_to_rad(h.reg(IDS[name], 'present_position'))
+
+
+class Goal:
+    """One goal sent by an action client: its feedback, its result."""
+
+    def __init__(self, client: ActionClient, goal: Any) -> None:
+        self.feedback: List[Tuple[float, Any]] = []
+        self.sent_s = time.monotonic()
+        future = client.send_goal_async(
+            goal, feedback_callback=lambda msg: self.feedback.append(
+                (time.monotonic(), msg.feedback)))
+        wait_until(future.done, 10.0, 'the goal answered')
+        self.handle = future.result()
+        assert self.handle.accepted
+        self._result = self.handle.get_result_async()
+        self.ended_s = math.nan
+        self._result.add_done_callback(lambda _: setattr(self, 'ended_s', time.monotonic()))
+
+    def result(self, timeout_s: float = 15.0) -> Tuple[int, Any]:
+        """Return (status, result) once the goal ended."""
+        wait_until(self._result.done, timeout_s, 'the goal ended')
+        response = self._result.result()
+        return response.status, response.result
+
+    @property
+    def done(self) -> bool:
+        return self._result.done()
+
+    def cancel(self) -> None:
+        future = self.handle.cancel_goal_async()
+        wait_until(future.done, 10.0, 'the cancel answered')
+
+
+def client_of(h: NodeHarness) -> ActionClient:
+    assert h.client is not None
+    client = ActionClient(h.client.node, FollowJointTrajectory,
+                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory')
+    assert client.wait_for_server(timeout_sec=10.0), 'no follow_joint_trajectory server'
+    return client
+
+
+Plan = Sequence[Tuple[float, Sequence[float], Sequence[float]]]
+
+
+def goal_of(joints: Sequence[str], plan: Plan, **fields: Any) -> Any:
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = list(joints)
+    for t, positions, velocities in plan:
+        point = JointTrajectoryPoint()
+        point.positions = [float(p) for p in positions]
+        point.velocities = [float(v) for v in velocities]
+        point.time_from_start = Duration(sec=int(t), nanosec=int(round((t % 1) * 1e9)))
+        goal.trajectory.points.append(point)
+    for name, value in fields.items():
+        setattr(goal, name, value)
+    return goal
+
+
+def tolerance(name: str, position: float = 0.0, velocity: float = 0.0,
+              acceleration: float = 0.0) -> JointTolerance:
+    return JointTolerance(name=name, position=position, velocity=velocity,
+                          acceleration=acceleration)
+
+
+def here(h: NodeHarness, joints: Sequence[str]) -> List[float]:
+    return [sim_rad(h, name) for name in joints]
+
+
+def settled(h: NodeHarness, joints: Sequence[str]) -> List[float]:
+    """Wait until the joints are still (two reads 50 ms apart agree); return where they are."""
+    deadline = time.monotonic() + 5.0
+    before = here(h, joints)
+    while True:
+        time.sleep(0.05)
+        now = here(h, joints)
+        if max(abs(a - b) for a, b in zip(before, now)) < 0.003:
+            return now
+        assert time.monotonic() < deadline, 'the joints never came to rest'
+        before = now
+
+
+def wave(start: Sequence[float], points: int, duration_s: float, amplitude: float
+         ) -> List[Tuple[float, List[float], List[float]]]:
+    """Return a smooth out-and-back move of every joint with its velocities: `points` points."""
+    plan = []
+    for k in range(1, points + 1):
+        t = duration_s * k / points
+        phase = 2 * math.pi * t / duration_s
+        scale = [amplitude * (1.0 + 0.15 * j) for j in range(len(start))]
+        plan.append((t, [s + a * math.sin(phase) for s, a in zip(start, scale)],
+                     [a * 2 * math.pi / duration_s * math.cos(phase) for a in scale]))
+    return plan
+
+
+def test_a_six_joint_trajectory_is_followed_and_succeeds(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ARM)
+    plan = wave(start, 30, 3.0, 0.6)
+    # Sample the simulator itself at each point's time, from the moment the goal was sent.
+    errors: List[float] = []
+    lags: List[float] = []
+    goal = Goal(client, goal_of(ARM, plan))
+    for t, positions, velocities in plan:
+        time.sleep(max(0.0, goal.sent_s + t - time.monotonic()))
+        for actual, desired, speed in zip(here(h, ARM), positions, velocities):
+            errors.append(abs(actual - desired))
+            # The error a following servo has at this speed, as time behind the path.
+            lags.append(abs(actual - desired) / max(abs(speed), 0.2))
+    status, result = goal.result()
+    final = [abs(a - b) for a, b in zip(here(h, ARM), plan[-1][1])]
+    print(f'error at the 30 points: max {max(errors):.4f} rad, mean '
+          f'{sum(errors) / len(errors):.4f} rad, as time behind the path max '
+          f'{max(lags) * 1e3:.0f} ms; final {max(final):.4f} rad; '
+          f'{len(goal.feedback)} feedback in {goal.ended_s - goal.sent_s:.2f} s')
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
+    assert result.error_code == Result.SUCCESSFUL
+    # The servos follow the sampled path with their own lag (no profile, the default PID) and
+    # the client's sampling is a few ms late: bounds with margin over what is measured here.
+    assert max(errors) < 0.2 and max(lags) < 0.12, (errors, lags)
+    assert max(final) < 0.05, final   # goal_tolerance: the default 0.05 rad
+    # Feedback at action_monitor_rate (20 Hz) over the 3 s, each from a fresh sample.
+    assert 40 <= len(goal.feedback) <= 75, len(goal.feedback)
+    stamp, last = goal.feedback[-1]
+    assert list(last.joint_names) == list(ARM)
+    for name, desired, actual, error in zip(last.joint_names, last.desired.positions,
+                                            last.actual.positions, last.error.positions):
+        assert error == pytest.approx(desired - actual)
+        assert abs(actual - sim_rad(h, name)) < 0.1
+
+
+REFUSALS: Dict[str, Tuple[Callable[[List[float]], Any], int, str]] = {
+    'unknown joint': (lambda p: goal_of(['j1', 'nope'], [(1.0, [p[0], 0.0], [])]),
+                      Result.INVALID_JOINTS, "unknown joint 'nope'"),
+    'velocity joint': (lambda p: goal_of(['j1', 'wheel'], [(1.0, [p[0], 0.0], [])]),
+                       Result.INVALID_JOINTS, "joint 'wheel' is in velocity mode"),
+    'times not increasing': (
+        lambda p: goal_of(['j1'], [(1.0, [p[0]], []), (1.0, [p[0]], [])]),
+        Result.INVALID_GOAL, 'not after the previous point'),
+    'lengths disagree': (lambda p: goal_of(['j1', 'j3'], [(1.0, [p[0]], [])]),
+                         Result.INVALID_GOAL, '1 positions for 2 joints'),
+    'not a number': (lambda p: goal_of(['j1'], [(1.0, [math.nan], [])]),
+                     Result.INVALID_GOAL, "joint 'j1' has position nan"),
+    'infinite velocity': (lambda p: goal_of(['j1'], [(1.0, [p[0]], [math.inf])]),
+                          Result.INVALID_GOAL, "joint 'j1' has velocity inf"),
+    'beyond the limits': (lambda p: goal_of(['j1'], [(1.0, [4.0], [])]),
+                          Result.INVALID_GOAL, 'beyond its limits'),
+    'no points': (lambda p: goal_of(['j1'], []), Result.INVALID_GOAL, 'no points'),
+    'tolerance of another joint': (
+        lambda p: goal_of(['j1'], [(1.0, [p[0]], [])], path_tolerance=[tolerance('j3', 0.1)]),
+        Result.INVALID_GOAL, "path_tolerance of 'j3': no such joint"),
+    'negative tolerance': (
+        lambda p: goal_of(['j1'], [(1.0, [p[0]], [])], goal_tolerance=[tolerance('j1', -2.0)]),
+        Result.INVALID_GOAL, 'position -2.0 is neither'),
+    'acceleration tolerance': (
+        lambda p: goal_of(['j1'], [(1.0, [p[0]], [])],
+                          path_tolerance=[tolerance('j1', acceleration=1.0)]),
+        Result.INVALID_GOAL, 'acceleration tolerances cannot be checked'),
+}
+
+
+def old_goal(h: NodeHarness, p: List[float]) -> Any:
+    goal = goal_of(['j1'], [(0.5, [p[0]], [])])
+    stamp = h.node.get_clock().now().nanoseconds - 2 * 10 ** 9   # type: ignore[union-attr]
+    goal.trajectory.header.stamp.sec, goal.trajectory.header.stamp.nanosec = divmod(stamp,
+                                                                                    10 ** 9)
+    return goal
+
+
+@pytest.mark.parametrize('case', sorted(REFUSALS) + ['old header stamp'])
+def test_a_bad_goal_ends_with_its_error_code_and_nothing_moves(h: NodeHarness,
+                                                               case: str) -> None:
+    client = client_of(h)
+    positions = here(h, ARM)
+    goals_before = {name: h.reg(IDS[name], 'goal_position') for name in ARM}
+    if case == 'old header stamp':
+        goal, code, reason = old_goal(h, positions), Result.OLD_HEADER_TIMESTAMP, 'ended'
+    else:
+        make, code, reason = REFUSALS[case]
+        goal = make(positions)
+    status, result = Goal(client, goal).result()
+    assert status == GoalStatus.STATUS_ABORTED
+    assert result.error_code == code, result.error_string
+    assert reason in result.error_string
+    time.sleep(0.1)   # what a wrongly accepted goal would have written by now
+    assert {name: h.reg(IDS[name], 'goal_position') for name in ARM} == goals_before
+
+
+def test_cancel_holds_the_joints_where_they_are(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ['j1', 'j3'])
+    goal = Goal(client, goal_of(['j1', 'j3'], [(2.0, [s + 1.5 for s in start], [])]))
+    time.sleep(0.8)   # about 0.6 rad on the way
+    goal.cancel()
+    status, result = goal.result()
+    assert status == GoalStatus.STATUS_CANCELED, result.error_string
+    assert result.error_code == Result.SUCCESSFUL
+    at_cancel = here(h, ['j1', 'j3'])
+    time.sleep(0.2)
+    later = here(h, ['j1', 'j3'])
+    moved = [abs(a - b) for a, b in zip(at_cancel, later)]
+    print(f'after the cancel: {at_cancel} -> {later} (0.2 s)')
+    # Held where they were (the last sample ahead of them is not what they go to): within
+    # 0.05 rad 0.2 s on, and far from the goal's end.
+    assert max(moved) < 0.05, moved
+    assert all(abs(a - (s + 1.5)) > 0.5 for a, s in zip(later, start))
+
+
+def test_a_goal_sharing_a_joint_preempts_the_running_one(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ['j1', 'j3'])
+    first = Goal(client, goal_of(['j1', 'j3'], [(3.0, [s + 1.0 for s in start], [])]))
+    time.sleep(0.5)
+    second = Goal(client, goal_of(['j3'], [(0.5, [start[1] - 0.3], [])]))
+    status, result = first.result()
+    assert status == GoalStatus.STATUS_ABORTED
+    assert 'preempted by goal' in result.error_string and "'j3'" in result.error_string
+    assert second.handle.goal_id.uuid.tobytes().hex()[:8] in result.error_string
+    status, result = second.result()
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
+    assert abs(sim_rad(h, 'j3') - (start[1] - 0.3)) < 0.05
+
+
+def test_goals_on_disjoint_joints_run_side_by_side(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ['j1', 'j4'])
+    a = Goal(client, goal_of(['j1'], [(1.5, [start[0] + 0.5], [])]))
+    b = Goal(client, goal_of(['j4'], [(1.0, [start[1] - 0.5], [])]))
+    time.sleep(0.6)
+    assert not a.done and not b.done   # both under way at once
+    moving = here(h, ['j1', 'j4'])
+    assert moving[0] > start[0] + 0.1 and moving[1] < start[1] - 0.1
+    for goal in (a, b):
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
+    assert abs(sim_rad(h, 'j1') - (start[0] + 0.5)) < 0.05
+    assert abs(sim_rad(h, 'j4') - (start[1] - 0.5)) < 0.05
+
+
+def test_a_brake_on_one_joint_violates_the_path_tolerance(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ['j5', 'j6'])
+    h.sim.set_load(IDS['j5'], 6.0)   # beyond the XM430's 4.1 N*m stall torque
+    try:
+        goal = Goal(client, goal_of(['j5', 'j6'], [(2.0, [s + 1.0 for s in start], [])],
+                                    path_tolerance=[tolerance('j5', 0.1),
+                                                    tolerance('j6', 0.1)]))
+        status, result = goal.result()
+        after_s = goal.ended_s - goal.sent_s
+        print(f'path violation after {after_s:.2f} s: {result.error_string}')
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.error_code == Result.PATH_TOLERANCE_VIOLATED
+        assert "joint 'j5'" in result.error_string
+        # 0.1 rad behind a ramp of 0.5 rad/s: about 0.2 s, the lag of the free joint aside.
+        assert after_s < 0.6
+        held = here(h, ['j6'])
+        time.sleep(0.3)
+        assert abs(here(h, ['j6'])[0] - held[0]) < 0.03   # the free joint holds too
+    finally:
+        h.sim.set_load(IDS['j5'], 0.0)
+
+
+def test_a_joint_short_of_its_goal_violates_the_goal_tolerance(h: NodeHarness) -> None:
+    client = client_of(h)
+    start = settled(h, ['j4'])
+    h.sim.set_load(IDS['j4'], 6.0)
+    try:
+        goal = Goal(client, goal_of(['j4'], [(0.3, [start[0] + 0.5], [])],
+                                    goal_time_tolerance=Duration(sec=0, nanosec=200_000_000)))
+        status, result = goal.result()
+        assert status == GoalStatus.STATUS_ABORTED
+        assert result.error_code == Result.GOAL_TOLERANCE_VIOLATED, result.error_string
+        assert "'j4'" in result.error_string
+        assert 0.4 < goal.ended_s - goal.sent_s < 1.5
+    finally:
+        h.sim.set_load(IDS['j4'], 0.0)
+
+
+def run_until_midway(joints: Sequence[str]) -> Tuple[NodeHarness, Goal]:
+    h = arm_harness()
+    client = client_of(h)
+    start = settled(h, joints)
+    goal = Goal(client, goal_of(joints, [(3.0, [s + 1.0 for s in start], [])]))
+    time.sleep(0.5)
+    assert not goal.done
+    return h, goal
+
+
+def test_a_deactivate_ends_a_running_goal() -> None:
+    h, goal = run_until_midway(['j1', 'j2'])
+    with h:
+        response = h.call('change_state', transition=__import__(
+            'lifecycle_msgs.msg', fromlist=['Transition']).Transition(
+                id=4))   # deactivate
+        assert response.success
+        status, result = goal.result(5.0)
+        assert status == GoalStatus.STATUS_ABORTED
+        assert 'deactivated' in result.error_string
+        assert goal.ended_s - goal.sent_s < 2.0
+
+
+def test_a_port_loss_ends_a_running_goal() -> None:
+    h, goal = run_until_midway(['j1', 'j2'])
+    with h:
+        port = h.node.manager.port   # type: ignore[union-attr]
+        port.unplug_port()
+        status, result = goal.result(5.0)
+        assert status == GoalStatus.STATUS_ABORTED
+        assert 'the port is lost' in result.error_string, result.error_string
+        assert goal.ended_s - goal.sent_s < 2.0
+        port.plug_port()
+
+
+def test_a_servo_that_stops_answering_ends_a_running_goal() -> None:
+    h, goal = run_until_midway(['j1', 'j2'])
+    with h:
+        h.sim.unplug(IDS['j2'])
+        status, result = goal.result(5.0)
+        assert status == GoalStatus.STATUS_ABORTED
+        assert "joint 'j2' stopped answering" in result.error_string, result.error_string
+        assert goal.ended_s - goal.sent_s < 1.5
+        h.sim.plug(IDS['j2'])
+
+
+def test_a_latched_hardware_error_ends_a_running_goal() -> None:
+    h, goal = run_until_midway(['j1', 'j2'])
+    with h:
+        h.sim.inject_error(IDS['j1'], 'overload')
+        status, result = goal.result(5.0)
+        assert status == GoalStatus.STATUS_ABORTED
+        assert "joint 'j1' latched a hardware error" in result.error_string, result.error_string
+        assert 'overload' in result.error_string
+        assert goal.ended_s - goal.sent_s < 1.5
+        # The other joint holds where it was, and nothing resumes the goal.
+        held = sim_rad(h, 'j2')
+        time.sleep(0.5)
+        assert abs(sim_rad(h, 'j2') - held) < 0.02
