@@ -122,7 +122,7 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'How long after its last point a trajectory may take to come within its goal '
               'tolerances (an action goal may say otherwise).', 's', 0.0, 60.0, runtime=True),
     ParamSpec('action_monitor_rate', float, 20.0,
-              'Rate of the feedback of follow_joint_trajectory goals.', 'Hz',
+              'Rate of the feedback of follow_joint_trajectory and gripper_cmd goals.', 'Hz',
               1.0, 1000.0, runtime=True),
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '

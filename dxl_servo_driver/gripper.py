@@ -8,11 +8,12 @@ of overloading. A grasp is a gripper stalled short of its goal with its current 
 
 from dataclasses import dataclass
 import math
-from typing import Optional, Tuple
+from typing import Optional, Protocol, Tuple
 
 from dxl_servo_driver.errors import BadRequest
 
-__all__ = ['GraspDetector', 'GripperError', 'GripperSpec', 'gripper_goal']
+__all__ = ['GraspDetector', 'GripperError', 'GripperListener', 'GripperOutcome', 'GripperRun',
+           'GripperSample', 'GripperSpec', 'gripper_goal']
 
 # Stalled: slower than this ...
 STALL_RAD_S = 0.05
@@ -90,3 +91,110 @@ class GraspDetector:
             self._stalled_since = None
             self.grasping = False
         return self.grasping
+
+
+# A gripper goal that stopped moving this long short of its goal, not at its current limit,
+# ended somewhere it was not sent (blocked by something that is not an object in its grip).
+STOPPED_S = 0.5
+
+# How a gripper goal ended (GripperOutcome.how).
+REACHED = 'reached'
+STALLED = 'stalled'
+STOPPED_SHORT = 'stopped_short'
+PREEMPTED = 'preempted'
+CANCELED = 'canceled'
+ABORTED = 'aborted'
+
+
+@dataclass(frozen=True)
+class GripperSample:
+    """What a gripper goal reports: position (rad), effort (N*m), stalled, reached."""
+
+    position: float
+    effort: float
+    stalled: bool
+    reached_goal: bool
+
+
+@dataclass(frozen=True)
+class GripperOutcome:
+    """How a gripper goal ended, why (for a person), and the last sample."""
+
+    how: str
+    message: str
+    sample: Optional[GripperSample]
+
+
+class GripperListener(Protocol):
+    """Who is told of a gripper goal's progress (an action goal). Called from the cycle."""
+
+    feedback_period_s: float
+
+    def feedback(self, sample: GripperSample) -> None:
+        """Take one feedback sample."""
+
+    def ended(self, outcome: GripperOutcome) -> None:
+        """Take the end of the goal (exactly once)."""
+
+
+class GripperRun:
+    """
+    One gripper goal, watched at every cycle until it ends.
+
+    It ends when it reached its goal, stalled on an object, stopped short, or was preempted,
+    canceled or aborted.
+
+    goal_raw is the Goal Position it queued: when the servo's goal is something else, another
+    command took the gripper (a ~/gripper message, a trajectory, a service) and the goal ends.
+    """
+
+    def __init__(self, joint: str, goal_rad: float, goal_raw: int, tolerance_rad: float,
+                 listener: GripperListener, now_s: float) -> None:
+        self.joint = joint
+        self.goal_rad = goal_rad
+        self.goal_raw = goal_raw
+        self.tolerance_rad = tolerance_rad
+        self.listener = listener
+        self.cancel_requested = False
+        self._written = False   # the servo's goal was seen to be ours
+        self._next_feedback_s = now_s
+        self._still_since: Optional[float] = None
+        self.last: Optional[GripperSample] = None
+
+    def watch(self, now_s: float, position: Optional[float], velocity: float, effort: float,
+              grasping: bool, goal_raw_now: Optional[int], trouble: str
+              ) -> Optional[GripperOutcome]:
+        """Take one cycle (position None: no fresh sample); return the outcome if it ends."""
+        if trouble:
+            return GripperOutcome(ABORTED, f'joint {self.joint!r} {trouble}', self.last)
+        if goal_raw_now == self.goal_raw:
+            self._written = True
+        elif self._written:
+            return GripperOutcome(PREEMPTED, f'joint {self.joint!r} was given another goal',
+                                  self.last)
+        if self.cancel_requested:
+            return GripperOutcome(CANCELED, 'canceled: the gripper holds where it is',
+                                  self.last)
+        if position is None:
+            return None
+        reached = abs(position - self.goal_rad) <= self.tolerance_rad
+        sample = GripperSample(position, effort, grasping, reached)
+        self.last = sample
+        if now_s >= self._next_feedback_s:
+            self._next_feedback_s = now_s + self.listener.feedback_period_s
+            self.listener.feedback(sample)
+        if reached:
+            return GripperOutcome(REACHED, f'reached {position:.4f} rad', sample)
+        if grasping:
+            return GripperOutcome(STALLED, f'stalled at {position:.4f} rad holding '
+                                  f'{effort:.3f} N*m: an object in its grip', sample)
+        if abs(velocity) < STALL_RAD_S:
+            if self._still_since is None:
+                self._still_since = now_s
+            elif now_s - self._still_since >= STOPPED_S:
+                return GripperOutcome(STOPPED_SHORT, f'stopped at {position:.4f} rad, '
+                                      f'{abs(position - self.goal_rad):.4f} rad short of its '
+                                      'goal, below its current limit', sample)
+        else:
+            self._still_since = None
+        return None

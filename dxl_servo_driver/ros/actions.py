@@ -1,8 +1,10 @@
 """
-MoveIt's actions: control_msgs' FollowJointTrajectory, served as joint_trajectory_controller does.
+MoveIt's actions: control_msgs' FollowJointTrajectory and GripperCommand.
 
-ros2_controllers' joint_trajectory_controller is what MoveIt usually talks to: the same codes and
-the same tolerances here mean MoveIt sees the same results.
+ros2_controllers' joint_trajectory_controller is what MoveIt usually talks to for an arm: the
+same codes and the same tolerances here mean MoveIt sees the same results. GripperCommand drives
+a `gripper: true` joint with an effort limit and ends when it reached its goal, stalled on an
+object (succeeded, stalled), stopped short, or was preempted, canceled or aborted.
 
 A goal is read whole before anything moves; a refused one ends at once with its error_code and
 an error_string naming the cause (accepted, then aborted: a rejected goal carries no result, and
@@ -26,8 +28,9 @@ import time
 from typing import Any, Deque, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from builtin_interfaces.msg import Duration
-from control_msgs.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver import gripper
 from dxl_servo_driver import trajectory as traj
 from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.ros.arm import Arm
@@ -113,16 +116,16 @@ class _Channel:
 
 
 class _GoalListener:
-    """A trajectory's listener that forwards to a goal's channel."""
+    """A trajectory's (or gripper goal's) listener that forwards to a goal's channel."""
 
     def __init__(self, channel: _Channel, feedback_period_s: float) -> None:
         self._channel = channel
         self.feedback_period_s = feedback_period_s
 
-    def feedback(self, sample: traj.Feedback) -> None:
+    def feedback(self, sample: Any) -> None:
         self._channel.post('feedback', sample)
 
-    def ended(self, outcome: traj.Outcome) -> None:
+    def ended(self, outcome: Any) -> None:
         self._channel.post('ended', outcome)
 
 
@@ -199,7 +202,7 @@ class Actions:
         self._log = host.get_logger()
         self._lock = threading.Lock()
         # The trajectory of each goal under way, to cancel it.
-        self._runs: Dict[bytes, traj.Trajectory] = {}
+        self._runs: Dict[bytes, Any] = {}
         self.node = rclpy.create_node(f'{host.get_name()}_actions',
                                       namespace=host.get_namespace(), context=host.context)
         self._executor = SingleThreadedExecutor(context=host.context)
@@ -209,6 +212,19 @@ class Actions:
             self.node, FollowJointTrajectory, f'{base}/follow_joint_trajectory',
             execute_callback=self._follow, goal_callback=lambda goal: GoalResponse.ACCEPT,
             cancel_callback=self._cancel)
+        # GripperCommand: ~/<joint>/gripper_cmd for every gripper joint, and ~/gripper_cmd as
+        # well when there is one (MoveIt's GripperCommand controller sends to
+        # <controller>/gripper_cmd: the controller is the node, or the node's joint).
+        self.grippers: Dict[str, ActionServer] = {}
+        joints = [joint.name for joint in host.config.joints if joint.gripper]
+        names = {f'{base}/{name}/gripper_cmd': name for name in joints}
+        if len(joints) == 1:
+            names[f'{base}/gripper_cmd'] = joints[0]
+        for action, joint in names.items():
+            self.grippers[action] = ActionServer(
+                self.node, GripperCommand, action,
+                execute_callback=self._gripper_execute(joint),
+                goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=self._cancel)
         self._thread = threading.Thread(target=self._spin, name='dxl_actions', daemon=True)
         self._thread.start()
 
@@ -227,6 +243,8 @@ class Actions:
         self._executor.shutdown(timeout_sec=2.0)
         self._thread.join(timeout=5.0)
         self.follow_joint_trajectory.destroy()
+        for server in self.grippers.values():
+            server.destroy()
         self.node.destroy_node()
 
     # FollowJointTrajectory ------------------------------------------------------------------
@@ -235,7 +253,10 @@ class Actions:
             run = self._runs.get(bytes(handle.goal_id.uuid))
         if run is None:
             return CancelResponse.REJECT
-        self._host.arm.trajectories.cancel(run)
+        if isinstance(run, gripper.GripperRun):
+            self._host.arm.cancel_gripper_goal(run)
+        else:
+            self._host.arm.trajectories.cancel(run)
         return CancelResponse.ACCEPT
 
     def _trajectory(self, goal: Any, label: str, listener: _GoalListener) -> traj.Trajectory:
@@ -324,3 +345,65 @@ class Actions:
                                      how, Result.INVALID_GOAL)
             handle.abort()
         return result
+
+    # GripperCommand ---------------------------------------------------------------------------
+    def _gripper_execute(self, joint: str) -> Any:
+        # A coroutine function of its own: rclpy awaits only what is one (a lambda returning a
+        # coroutine would hand the coroutine over as the result).
+        async def execute(handle: Any) -> Any:
+            return await self._grip(handle, joint)
+        return execute
+
+    async def _grip(self, handle: Any, joint: str) -> Any:
+        goal_id = bytes(handle.goal_id.uuid)
+        label = f'gripper_cmd goal {goal_id.hex()[:8]} for {joint!r}'
+        channel = _Channel(self._executor)
+        listener = _GoalListener(channel, 1.0 / self._host.config.action_monitor_rate)
+        command = handle.request.command
+        try:
+            if not self._host.active:
+                raise BadRequest('the driver is not active (activate it first)')
+            run = self._host.arm.submit_gripper_goal(joint, command.position,
+                                                     command.max_effort, listener)
+        except BadRequest as exc:
+            # GripperCommand's result has no error field: the log says why.
+            self._log.warning(f'{label} refused: {exc}')
+            handle.abort()
+            return GripperCommand.Result()
+        with self._lock:
+            self._runs[goal_id] = run
+        try:
+            while True:
+                kind, payload = await channel.take()
+                if kind == 'feedback':
+                    feedback = GripperCommand.Feedback()
+                    _fill_gripper(feedback, payload)
+                    handle.publish_feedback(feedback)
+                    continue
+                return self._gripper_ended(handle, label, payload)
+        finally:
+            with self._lock:
+                self._runs.pop(goal_id, None)
+
+    def _gripper_ended(self, handle: Any, label: str, outcome: gripper.GripperOutcome) -> Any:
+        result = GripperCommand.Result()
+        if outcome.sample is not None:
+            _fill_gripper(result, outcome.sample)
+        if outcome.how in (gripper.REACHED, gripper.STALLED):
+            # A stall on an object is what closing on it is for: succeeded, stalled and not
+            # reached_goal say so (gripper_action_controller's allow_stalling: true).
+            self._log.info(f'{label}: {outcome.message}')
+            handle.succeed()
+        elif outcome.how == gripper.CANCELED and handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            self._log.warning(f'{label} ended: {outcome.message}')
+            handle.abort()
+        return result
+
+
+def _fill_gripper(message: Any, sample: gripper.GripperSample) -> None:
+    message.position = float(sample.position)
+    message.effort = float(sample.effort)
+    message.stalled = bool(sample.stalled)
+    message.reached_goal = bool(sample.reached_goal)

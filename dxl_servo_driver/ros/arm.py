@@ -9,14 +9,17 @@ subscriptions log its reason when refused. No bus work here: goals go to the man
 written by the next cycle.
 """
 
+import math
+import threading
 import time
 from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver import gripper
 from dxl_servo_driver import trajectory as traj
 from dxl_servo_driver.commands import split_joint_state
 from dxl_servo_driver.errors import BadRequest
-from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperSpec
+from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
 from dxl_servo_driver.manager import IDX_EFFORT, IDX_POSITION, IDX_VELOCITY, Manager, Result
 
 __all__ = ['Arm']
@@ -43,6 +46,8 @@ class Arm:
         self.trajectories = traj.Executor(self._present_rad, self._trajectory_ended,
                                           config.goal_tolerance)
         self.grasps: Dict[str, GraspDetector] = {}
+        self.gripper_runs: Dict[str, gripper.GripperRun] = {}
+        self._gripper_lock = threading.Lock()
         self.take(config)
 
     def take(self, config: cfg.DriverConfig) -> None:
@@ -124,8 +129,9 @@ class Arm:
             self.trajectories.cancel(why=f'its goals were refused: {result.message}')
 
     def cancel(self, why: str = 'the bus cycle stopped') -> None:
-        """End every trajectory as aborted (the cycle stops: deactivate, error, shutdown)."""
+        """End every trajectory and gripper goal as aborted (deactivate, error, shutdown)."""
         self.trajectories.cancel(why=why)
+        self._end_gripper_goals(why)
 
     def _trajectory_ended(self, outcome: traj.Outcome) -> None:
         log = self._host.get_logger()
@@ -185,6 +191,99 @@ class Arm:
         # The current first: a gripper never closes with more than it was told.
         goals = [('current', [servo.name], [current])] if current is not None else []
         return self._queue_all(goals + [('position', [servo.name], [goal])])
+
+    # gripper goals (the GripperCommand action) --------------------------------------------
+    def submit_gripper_goal(self, name: str, position: float, max_effort_nm: float,
+                            listener: gripper.GripperListener) -> gripper.GripperRun:
+        """
+        Queue a gripper goal and watch it; raise GripperError saying why not.
+
+        position in rad, max_effort_nm the effort limit in N*m (0: the configured goal
+        current). A goal under way on the joint is preempted.
+        """
+        manager = self._host.manager
+        servo = self._gripper_servo(name)
+        torque_constant = servo.units.torque_constant_nm_per_a
+        if not math.isfinite(max_effort_nm) or max_effort_nm < 0.0:
+            raise GripperError(f'max_effort {max_effort_nm} N*m is not a finite effort >= 0')
+        current = max_effort_nm / torque_constant if max_effort_nm > 0.0 else math.nan
+        spec = GripperSpec(servo.name, servo.joint.gripper_open, servo.joint.gripper_closed,
+                           servo.units.current_to_a(servo.limits.get('current_limit', 0)))
+        try:
+            goal, current_a = gripper_goal(spec, position, math.nan, current)
+        except GripperError as exc:
+            # Said in the action's unit, N*m, not the current it was turned into.
+            raise GripperError(str(exc).replace(
+                f'max_effort {current:g} A', f'max_effort {max_effort_nm:g} N*m '
+                f'({current:g} A at {torque_constant:g} N*m/A)')) from None
+        checked = manager.check_goals('position', [name], [goal])
+        if not checked.success:
+            raise GripperError(checked.message)
+        goals = [('current', [name], [current_a])] if current_a is not None else []
+        queued = self._queue_all(goals + [('position', [name], [goal])])
+        if not queued.success:
+            raise GripperError(queued.message)
+        tolerance = servo.joint.goal_tolerance or self._host.config.goal_tolerance
+        run = gripper.GripperRun(name, goal, checked.value[0][2], tolerance, listener,
+                                 time.monotonic())
+        with self._gripper_lock:
+            old = self.gripper_runs.get(name)
+            self.gripper_runs[name] = run
+        if old is not None:
+            old.listener.ended(gripper.GripperOutcome(
+                gripper.PREEMPTED, f'preempted by a new gripper_cmd goal for {name!r}',
+                old.last))
+        return run
+
+    def _gripper_servo(self, name: str) -> Any:
+        servo = self._host.manager.servos.get(name)
+        if servo is None:
+            raise GripperError(f'unknown joint {name!r}')
+        if not servo.joint.gripper:
+            raise GripperError(f'joint {name!r} is not a gripper (set {name}.gripper: true)')
+        if servo.mode != 'current_based_position':
+            raise GripperError(f'gripper {name!r} is in {servo.mode} mode, not '
+                               'current_based_position')
+        return servo
+
+    def cancel_gripper_goal(self, run: gripper.GripperRun) -> None:
+        """Ask a gripper goal to end; the next cycle holds the gripper where it is."""
+        run.cancel_requested = True
+
+    def watch_grippers(self, now_s: float) -> None:
+        """Watch every gripper goal on this cycle's sample (called by the cycle)."""
+        manager = self._host.manager
+        with self._gripper_lock:
+            runs = list(self.gripper_runs.items())
+        for name, run in runs:
+            servo = manager.servos[name]
+            state = servo.state
+            position = velocity = effort = None
+            if state is not None and servo.fresh:
+                units = servo.units
+                position = servo.position_rad(state[IDX_POSITION])
+                velocity = units.velocity_to_rad_s(state[IDX_VELOCITY])
+                effort = units.current_to_a(state[IDX_EFFORT]) * units.torque_constant_nm_per_a
+            detector = self.grasps.get(name)
+            outcome = run.watch(now_s, position, velocity or 0.0, effort or 0.0,
+                                detector is not None and detector.grasping,
+                                servo.goal_raw.get('goal_position'), manager.joint_trouble(name))
+            if outcome is None:
+                continue
+            with self._gripper_lock:
+                if self.gripper_runs.get(name) is run:
+                    del self.gripper_runs[name]
+            if outcome.how in (gripper.CANCELED, gripper.STOPPED_SHORT) and state is not None:
+                # Held where it is, not pushed on toward a goal it is not going to.
+                manager.command('position', [name], [servo.position_rad(state[IDX_POSITION])])
+            run.listener.ended(outcome)
+
+    def _end_gripper_goals(self, why: str) -> None:
+        with self._gripper_lock:
+            runs = list(self.gripper_runs.values())
+            self.gripper_runs.clear()
+        for run in runs:
+            run.listener.ended(gripper.GripperOutcome(gripper.ABORTED, why, run.last))
 
     # grasps -----------------------------------------------------------------------------------
     def update_grasps(self, now_s: float) -> None:

@@ -408,6 +408,8 @@ class DriverNode(LifecycleNode):
     def _publish(self, stamp_ns: int, read_ok: bool) -> None:
         if read_ok and self.arm.grasps:
             self.arm.update_grasps(time.monotonic())
+        if self.arm.gripper_runs:
+            self.arm.watch_grippers(time.monotonic())
         if read_ok and self.joint_states_pub is not None:
             msg = self._joints.message(stamp_ns)
             if msg is not None:
