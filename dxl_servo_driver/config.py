@@ -15,7 +15,7 @@ naming the offending key. It runs before the bus is touched, so a bad file never
 import dataclasses
 from dataclasses import dataclass, field
 import math
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from dxl_servo_driver import models
 from dxl_servo_driver import registers
@@ -158,6 +158,19 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               'stall current of the model the servo answered with (the XM430 manual: 4.1 N*m '
               'at 2.3 A = 1.783); `ros2 param get` shows the value in use once configured.',
               'N*m/A', shown="the model's datasheet"),
+    ParamSpec('offset', float, 0.0,
+              "The joint's 0 in the servo's radians (raw 2048 = 0 rad): "
+              'joint = (-1 if reverse else 1) * ratio * (servo - offset).', 'rad', -1e4, 1e4),
+    ParamSpec('reverse', bool, False, 'The joint turns against the servo.'),
+    ParamSpec('ratio', float, 1.0,
+              'Joint units per servo radian: a 1:3 gearbox 1/3; a rack and pinion in m/rad (the '
+              "joint's units are then m, m/s and N).", '', 1e-6, 1e6),
+    ParamSpec('min_position', float, None,
+              'The lowest position the joint is sent to (joint units): beyond is refused; in a '
+              "single-turn position mode written to the servo's Min/Max Position Limit.",
+              '', -1e6, 1e6, shown="the servo's limit"),
+    ParamSpec('max_position', float, None, 'The highest position the joint is sent to (as '
+              'min_position).', '', -1e6, 1e6, shown="the servo's limit"),
     ParamSpec('path_tolerance', float, 0.0,
               'How far the joint may be from the setpoint while a trajectory runs before it '
               'ends and holds (an action goal: PATH_TOLERANCE_VIOLATED; the goal may say '
@@ -198,6 +211,13 @@ class JointConfig:
     # Trajectory tolerances of this joint (rad); 0: path not checked, goal the top-level one.
     path_tolerance: float = 0.0
     goal_tolerance: float = 0.0
+    # The joint as the robot sees it (models.units.JointFrame) and its limits in joint units
+    # (None: the servo's).
+    offset: float = 0.0
+    reverse: bool = False
+    ratio: float = 1.0
+    min_position: Optional[float] = None
+    max_position: Optional[float] = None
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
@@ -376,11 +396,29 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         registers.append((register, value))
     joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
                         gripper, ends[0], ends[1], _joint_value(params, name, 'path_tolerance'),
-                        _joint_value(params, name, 'goal_tolerance'))
+                        _joint_value(params, name, 'goal_tolerance'),
+                        *_frame_and_limits(params, name, registers))
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
     return joint
+
+
+def _frame_and_limits(params: Mapping[str, Any], name: str,
+                      registers: Sequence[Tuple[str, int]]) -> Tuple[Any, ...]:
+    """Return (offset, reverse, ratio, min_position, max_position) of a joint, checked."""
+    values = [_joint_value(params, name, key)
+              for key in ('offset', 'reverse', 'ratio', 'min_position', 'max_position')]
+    low, high = values[3], values[4]
+    if low is not None and high is not None and not low < high:
+        raise ConfigError(f'{name}.min_position', f'{low} is not below max_position {high}')
+    if low is not None or high is not None:
+        given = [register for register, _ in registers
+                 if register in ('min_position_limit', 'max_position_limit')]
+        if given:
+            raise ConfigError(f'{name}.registers.{given[0]}', 'give the limits once: '
+                              f'{name}.min_position/max_position (joint units) set them')
+    return tuple(values)
 
 
 def _model(key: str, value: Any) -> models.Model:

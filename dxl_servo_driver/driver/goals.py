@@ -82,6 +82,13 @@ class Goals:
                                  'do not apply to it')
             if abs(value) > 1e9:
                 raise BadRequest(f'joint {name!r}: {value} {command.unit} is out of any range')
+            if kind == 'position':
+                low, high = servo.joint.min_position, servo.joint.max_position
+                if (low is not None and value < low) or (high is not None and value > high):
+                    raise BadRequest(
+                        f'joint {name!r}: position {value:g} is beyond its limits '
+                        f'{low if low is not None else "-inf"}..'
+                        f'{high if high is not None else "inf"} (min_position, max_position)')
             offset = servo.turn_offset if kind == 'position' else 0
             raw = command.to_raw(value) - offset
             clamped = _clamp(servo, command.register, raw)

@@ -16,7 +16,7 @@ from dxl_servo_driver.config import JointConfig
 from dxl_servo_driver.driver.clock import TickClock
 from dxl_servo_driver.errors import Refused
 from dxl_servo_driver.models import modes, xm430
-from dxl_servo_driver.models.units import Units, units_for
+from dxl_servo_driver.models.units import JointFrame, Units, units_for
 from dxl_servo_driver.state_block import GoalSlot, StateBlock
 from dxl_servo_driver.tasks import Steps
 
@@ -108,6 +108,16 @@ class Servo:
             return self.limits['min_position_limit'], self.limits['max_position_limit']
         return -xm430.EXTENDED_POSITION_LIMIT, xm430.EXTENDED_POSITION_LIMIT
 
+    def joint_position_range(self) -> Tuple[float, float]:
+        """Return the lowest and highest position the joint may be sent to (joint units)."""
+        ends = sorted(self.position_rad(raw) for raw in self.goal_position_range())
+        low, high = ends
+        if self.joint.min_position is not None:
+            low = max(low, self.joint.min_position)
+        if self.joint.max_position is not None:
+            high = min(high, self.joint.max_position)
+        return low, high
+
     def position_rad(self, raw: int) -> float:
         """Return a position register value (present or goal) as the joint's angle (rad)."""
         return self.units.position_to_rad(raw + self.turn_offset)
@@ -121,16 +131,21 @@ class Servo:
     def set_model(self, table: models.Model) -> None:
         """Take the table, units and state block of a model."""
         self.model = table
-        self.units = units_for(table, self.joint.torque_constant_nm_per_a)
+        self.units = units_for(table, self.joint.torque_constant_nm_per_a, frame_of(self.joint))
         self.block = state_block.state_block(table, self.units.effort_register)
 
     @classmethod
     def of(cls, joint: JointConfig) -> 'Servo':
         """Return the servo of a joint, with its configured model's table (or the manual's)."""
         table = joint.model or models.model_for(xm430.MODEL_NUMBER)
-        units = units_for(table, joint.torque_constant_nm_per_a)
+        units = units_for(table, joint.torque_constant_nm_per_a, frame_of(joint))
         return cls(joint, joint.operating_mode, table, units,
                    state_block.state_block(table, units.effort_register))
+
+
+def frame_of(joint: JointConfig) -> JointFrame:
+    """Return the frame a joint's configuration gives it (offset, reverse, ratio)."""
+    return JointFrame(joint.offset, joint.reverse, joint.ratio)
 
 
 class Roster:

@@ -105,6 +105,7 @@ class Setup:
         yield
         wanted = {'operating_mode': servo.model.modes[servo.mode]}
         wanted.update(servo.joint.register_dict())
+        wanted.update(position_limit_registers(servo))
         changed = []
         for name, value in wanted.items():
             if servo.model.item(name).area != 'eeprom':
@@ -336,3 +337,33 @@ def _cbp_current(servo: Servo) -> int:
     wanted = servo.goal_raw.get('goal_current',
                                 servo.joint.register_dict().get('goal_current', limit))
     return max(-limit, min(limit, wanted))
+
+
+def position_limit_registers(servo: Servo) -> Dict[str, int]:
+    """
+    Return the Min/Max Position Limit a joint's min_position/max_position give its servo.
+
+    Only in a single-turn position mode (the one that uses them; elsewhere the driver alone
+    refuses goals beyond them), and only the ends the configuration gives. ManagerError when an
+    end is beyond what the mode can reach.
+    """
+    joint = servo.joint
+    if servo.mode not in modes.SINGLE_TURN:
+        return {}
+    if joint.min_position is None and joint.max_position is None:
+        return {}
+    ends = {}
+    # A reversed joint's lowest position is the servo's highest.
+    for key, value in (('min_position', joint.min_position), ('max_position', joint.max_position)):
+        if value is None:
+            continue
+        raw = servo.units.position_from_rad(value)
+        register = ('min_position_limit' if (key == 'min_position') != joint.reverse
+                    else 'max_position_limit')
+        item = servo.model.item(register)
+        if not item.minimum <= raw <= item.maximum:
+            raise ManagerError(
+                f'joint {joint.name!r}: {key} {value:g} is servo position {raw}, beyond the '
+                f'{item.minimum}..{item.maximum} of {register} ({servo.mode} mode turns once)')
+        ends[register] = raw
+    return ends

@@ -5,6 +5,11 @@ Every conversion comes as a pair (raw -> SI, SI -> raw) so the two can never dri
 Effort is what the servo can tell of its output torque: Present Current times the torque
 constant where it senses current, Present Load (a share of the stall torque) where that is
 all it has (XL430/XC430).
+
+A joint need not be the servo's angle: `JointFrame` (offset, reverse, ratio) turns the servo's
+radians into the joint's units, joint = (-1 if reverse else 1) * ratio * (servo - offset), and
+every position, velocity and effort conversion of a joint's Units goes through it; currents,
+PWM and voltages stay the servo's.
 """
 
 from dataclasses import dataclass, field
@@ -13,7 +18,7 @@ from typing import Callable
 
 from dxl_servo_driver.models.base import Model
 
-__all__ = ['CommandKind', 'Units', 'units_for']
+__all__ = ['CommandKind', 'JointFrame', 'Units', 'units_for']
 
 _RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
@@ -30,6 +35,24 @@ class CommandKind:
 
 
 @dataclass(frozen=True)
+class JointFrame:
+    """Where a joint's 0 is in the servo's radians, whether it turns against it, its ratio."""
+
+    offset_rad: float = 0.0
+    reverse: bool = False
+    # Joint units (rad or m) per servo radian: a 1:3 gearbox 1/3, a rack and pinion in m/rad.
+    ratio: float = 1.0
+
+    @property
+    def scale(self) -> float:
+        """Return joint units per servo radian, signed."""
+        return -self.ratio if self.reverse else self.ratio
+
+
+IDENTITY = JointFrame()
+
+
+@dataclass(frozen=True)
 class Units:
     """The unit of each register of one model, and the effort scale of one joint."""
 
@@ -43,17 +66,21 @@ class Units:
     pwm_full_raw: int
     v_per_voltage_raw: float
     effort_register: str
-    effort_nm_per_raw: float
+    effort_nm_per_raw: float   # the joint's effort (N*m, or N on a linear joint) per raw
+    frame: JointFrame = IDENTITY
     kinds: dict[str, CommandKind] = field(default_factory=dict, compare=False, hash=False)
 
     # position ----------------------------------------------------------------------------
     def position_to_rad(self, raw: int) -> float:
-        """Return a position register value (pulses) in radians."""
-        return (raw - self.zero_raw) * self.rad_per_pulse
+        """Return a position register value (pulses) as the joint's position (rad or m)."""
+        frame = self.frame
+        return frame.scale * ((raw - self.zero_raw) * self.rad_per_pulse - frame.offset_rad)
 
     def position_from_rad(self, rad: float) -> int:
-        """Return the position register value (pulses) nearest to an angle in radians."""
-        return int(round(rad / self.rad_per_pulse)) + self.zero_raw
+        """Return the position register value (pulses) nearest to a joint position."""
+        frame = self.frame
+        servo_rad = rad / frame.scale + frame.offset_rad
+        return int(round(servo_rad / self.rad_per_pulse)) + self.zero_raw
 
     def reinit_position(self, present_raw: int, homing_offset: int) -> int:
         """
@@ -70,12 +97,18 @@ class Units:
 
     # velocity, current, pwm, voltage, effort -----------------------------------------------
     def velocity_to_rad_s(self, raw: int) -> float:
-        """Return a velocity register value in rad/s."""
-        return raw * self.rad_s_per_velocity_raw
+        """Return a velocity register value as the joint's velocity (rad/s or m/s)."""
+        return raw * self.rad_s_per_velocity_raw * self.frame.scale
 
     def velocity_from_rad_s(self, rad_s: float) -> int:
-        """Return the velocity register value nearest to a velocity in rad/s."""
-        return int(round(rad_s / self.rad_s_per_velocity_raw))
+        """Return the velocity register value nearest to a joint velocity."""
+        return int(round(rad_s / self.frame.scale / self.rad_s_per_velocity_raw))
+
+    @property
+    def joint_nm_per_a(self) -> float:
+        """Return the joint's effort per ampere, signed (the servo's torque through the frame)."""
+        # Power through the joint: effort_joint * v_joint = torque_servo * v_servo.
+        return self.torque_constant_nm_per_a / self.frame.scale
 
     def current_to_a(self, raw: int) -> float:
         """Return a current register value in amperes (NaN on a model without current)."""
@@ -106,9 +139,10 @@ class Units:
         return raw * self.effort_nm_per_raw
 
 
-def units_for(model: Model, torque_constant_nm_per_a: float | None = None) -> Units:
+def units_for(model: Model, torque_constant_nm_per_a: float | None = None,
+              frame: JointFrame = IDENTITY) -> Units:
     """
-    Return the units of a model; the torque constant defaults to the datasheet's.
+    Return the units of a model for a joint; the torque constant defaults to the datasheet's.
 
     The datasheet constant is stall torque over stall current at the nominal voltage, gear
     and friction included: what a joint's effort means at its output.
@@ -130,7 +164,7 @@ def units_for(model: Model, torque_constant_nm_per_a: float | None = None) -> Un
         rad_s_per_velocity_raw=model.velocity_unit_rpm * _RPM_TO_RAD_S,
         a_per_current_raw=model.current_unit_a, pwm_full_raw=model.pwm_full_raw,
         v_per_voltage_raw=model.voltage_unit_v, effort_register=effort_register,
-        effort_nm_per_raw=effort_scale)
+        effort_nm_per_raw=effort_scale / frame.scale, frame=frame)
     kinds = {
         'position': CommandKind('position', 'goal_position', 'rad', units.position_from_rad,
                                 units.position_to_rad),

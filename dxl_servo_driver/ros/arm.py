@@ -75,9 +75,8 @@ class Arm:
         """Return what a trajectory is checked against: each joint's mode and range (rad)."""
         limits = {}
         for servo in self._host.manager.order:
-            low, high = servo.goal_position_range()
-            limits[servo.name] = traj.Limits(servo.mode, servo.position_rad(low),
-                                             servo.position_rad(high), servo.online)
+            low, high = servo.joint_position_range()
+            limits[servo.name] = traj.Limits(servo.mode, low, high, servo.online)
         return limits
 
     def trajectory_of(self, msg: Any, now_s: Optional[float] = None) -> traj.Trajectory:
@@ -164,7 +163,9 @@ class Arm:
                 list(msg.name), {'position': msg.position, 'velocity': msg.velocity,
                                  'effort': msg.effort},
                 {name: servo.mode for name, servo in servos.items()},
-                {name: servo.units.torque_constant_nm_per_a for name, servo in servos.items()})
+                # Through the joint's frame: a reversed or geared joint's effort is not the
+                # servo's torque.
+                {name: servo.units.joint_nm_per_a for name, servo in servos.items()})
         except BadRequest as exc:
             return Result(False, str(exc))
         return self._queue_all([(kind, joints, values)
@@ -203,7 +204,7 @@ class Arm:
         """
         manager = self._host.manager
         servo = self._gripper_servo(name)
-        torque_constant = servo.units.torque_constant_nm_per_a
+        torque_constant = abs(servo.units.joint_nm_per_a)   # max_effort is a magnitude
         if not math.isfinite(max_effort_nm) or max_effort_nm < 0.0:
             raise GripperError(f'max_effort {max_effort_nm} N*m is not a finite effort >= 0')
         current = max_effort_nm / torque_constant if max_effort_nm > 0.0 else math.nan
@@ -263,7 +264,7 @@ class Arm:
                 units = servo.units
                 position = servo.position_rad(state[IDX_POSITION])
                 velocity = units.velocity_to_rad_s(state[IDX_VELOCITY])
-                effort = units.current_to_a(state[IDX_EFFORT]) * units.torque_constant_nm_per_a
+                effort = units.effort_to_nm(state[IDX_EFFORT])
             detector = self.grasps.get(name)
             outcome = run.watch(now_s, position, velocity or 0.0, effort or 0.0,
                                 detector is not None and detector.grasping,

@@ -83,10 +83,16 @@ class JointTable:
         self._msg = JointState()
         # The conversions of models.units as per-joint constants: this runs every cycle.
         # Rebuilt (a new table) once the servos said which model they are.
-        self._rows: List[Tuple[Servo, str, int, float, float, float]] = [
-            (servo, servo.name, servo.units.zero_raw, servo.units.rad_per_pulse,
-             servo.units.rad_s_per_velocity_raw, servo.units.effort_nm_per_raw)
-            for servo in servos]
+        # The joint's frame folded in: position = (raw + turns - zero) * scale, zero shifted by
+        # the offset (in pulses), scale signed.
+        self._rows: List[Tuple[Servo, str, float, float, float, float]] = []
+        for servo in servos:
+            units = servo.units
+            frame = units.frame
+            self._rows.append((
+                servo, servo.name, units.zero_raw + frame.offset_rad / units.rad_per_pulse,
+                units.rad_per_pulse * frame.scale, units.rad_s_per_velocity_raw * frame.scale,
+                units.effort_nm_per_raw))
         self._wires: Dict[Tuple[str, ...], _Wire] = {}
         # None until checked against the rmw's own deserialisation (check_wire).
         self.serialize: Optional[bool] = None

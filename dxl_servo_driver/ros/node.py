@@ -231,6 +231,12 @@ class DriverNode(LifecycleNode):
         self._from_servos = {
             f'{servo.name}.torque_constant': servo.units.torque_constant_nm_per_a
             for servo in self.manager.order if servo.joint.torque_constant_nm_per_a is None}
+        for servo in self.manager.order:
+            # The limits in force when the file gives none: the servo's, in joint units.
+            low, high = servo.joint_position_range()
+            for key, value in (('min_position', low), ('max_position', high)):
+                if getattr(servo.joint, key) is None:
+                    self._from_servos[f'{servo.name}.{key}'] = value
         self._declaring = True
         try:
             parameters.show_from_servos(self, self._from_servos)

@@ -91,7 +91,9 @@ def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
             'model': joint.model.name if joint.model is not None else '',
             'torque_constant': joint.torque_constant_nm_per_a, 'gripper': joint.gripper,
             'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed,
-            'path_tolerance': joint.path_tolerance, 'goal_tolerance': joint.goal_tolerance}
+            'path_tolerance': joint.path_tolerance, 'goal_tolerance': joint.goal_tolerance,
+            'offset': joint.offset, 'reverse': joint.reverse, 'ratio': joint.ratio,
+            'min_position': joint.min_position, 'max_position': joint.max_position}
 
 
 def coerce(params: List[Parameter]) -> List[Parameter]:

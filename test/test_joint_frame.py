@@ -1,0 +1,131 @@
+"""
+Joints as the robot sees them: offset, reverse, ratio and limits on every interface.
+
+joint = (-1 if reverse else 1) * ratio * (servo - offset), servo in the radians of the horn
+(raw 2048 = 0). Each test reads the simulated servo's own registers and computes the joint's
+value from them by that formula, so a sign, an offset or a ratio applied the wrong way round
+fails here.
+"""
+
+import math
+import time
+from typing import Any, Dict, Iterator
+
+from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.units import units_for
+from node_harness import NodeHarness, sim_params
+import pytest
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+XM430 = units_for(model_for(1030))
+FRAMES: Dict[str, Dict[str, Any]] = {
+    # A reversed joint whose 0 is 0.5 rad round the horn, with limits of its own.
+    'elbow': {'id': 1, 'operating_mode': 'position', 'offset': 0.5, 'reverse': True,
+              'min_position': -1.0, 'max_position': 1.2},
+    # A 1:3 gearbox after the horn, multi-turn.
+    'wrist': {'id': 2, 'operating_mode': 'extended_position', 'ratio': 1.0 / 3.0},
+    # A reversed wheel.
+    'wheel': {'id': 3, 'operating_mode': 'velocity', 'reverse': True},
+}
+IDS = {name: keys['id'] for name, keys in FRAMES.items()}
+
+
+def joint_of(name: str, servo_rad: float) -> float:
+    keys = FRAMES[name]
+    sign = -1.0 if keys.get('reverse') else 1.0
+    return sign * keys.get('ratio', 1.0) * (servo_rad - keys.get('offset', 0.0))
+
+
+def servo_of(name: str, joint: float) -> float:
+    keys = FRAMES[name]
+    sign = -1.0 if keys.get('reverse') else 1.0
+    return joint / (sign * keys.get('ratio', 1.0)) + keys.get('offset', 0.0)
+
+
+@pytest.fixture(scope='module')
+def h() -> Iterator[NodeHarness]:
+    with NodeHarness(sim_params(FRAMES)) as harness:
+        harness.joint_states.wait(lambda m: len(m.name) == len(FRAMES))
+        yield harness
+
+
+def servo_rad(h: NodeHarness, name: str, register: str = 'present_position') -> float:
+    return XM430.position_to_rad(h.reg(IDS[name], register))
+
+
+def published(h: NodeHarness, name: str) -> Any:
+    msg = h.joint_states.wait(lambda m: name in m.name, timeout_s=5.0)
+    i = list(msg.name).index(name)
+    return msg.position[i], msg.velocity[i], msg.effort[i]
+
+
+def test_joint_states_are_in_the_joints_frame(h: NodeHarness) -> None:
+    for name in ('elbow', 'wrist'):
+        expected = joint_of(name, servo_rad(h, name))
+        position = h.joint_states.wait(
+            lambda m: name in m.name and abs(
+                m.position[list(m.name).index(name)] - expected) < 0.01, timeout_s=5.0)
+        assert position is not None
+    # The elbow's horn sits at 0 rad: the joint reads -(0 - 0.5) = 0.5, not -0.5.
+    expected = joint_of('elbow', servo_rad(h, 'elbow'))
+    assert published(h, 'elbow')[0] == pytest.approx(expected, abs=0.01)
+
+
+def test_a_position_command_goes_to_the_servo_through_the_frame(h: NodeHarness) -> None:
+    h.publish('position', ['elbow', 'wrist'], [0.8, 2.0])
+    for name, goal in (('elbow', 0.8), ('wrist', 2.0)):
+        want = servo_of(name, goal)
+        h.wait_reg(IDS[name], 'goal_position',
+                   lambda raw, want=want: abs(XM430.position_to_rad(raw) - want) < 0.003)
+    # The wrist's servo turns 3 times as far: 6 rad for 2 rad of joint.
+    assert servo_rad(h, 'wrist', 'goal_position') == pytest.approx(6.0, abs=0.003)
+    # The elbow's servo goes the other way: 0.5 - 0.8 = -0.3 rad.
+    assert servo_rad(h, 'elbow', 'goal_position') == pytest.approx(-0.3, abs=0.003)
+    h.joint_states.wait(lambda m: abs(m.position[list(m.name).index('elbow')] - 0.8) < 0.02)
+
+
+def test_a_velocity_command_is_reversed_and_joint_states_say_so(h: NodeHarness) -> None:
+    h.publish('velocity', ['wheel'], [1.0])
+    h.wait_reg(IDS['wheel'], 'goal_velocity', lambda raw: XM430.velocity_to_rad_s(
+        raw if raw < 2 ** 31 else raw - 2 ** 32) == pytest.approx(-1.0, abs=0.03))
+    msg = h.joint_states.wait(lambda m: abs(m.velocity[list(m.name).index('wheel')] - 1.0) < 0.05)
+    assert msg is not None
+    h.publish('velocity', ['wheel'], [0.0])
+
+
+def test_beyond_min_or_max_position_is_refused_whole(h: NodeHarness) -> None:
+    time.sleep(0.1)
+    before = h.reg(IDS['elbow'], 'goal_position'), h.reg(IDS['wrist'], 'goal_position')
+    response = h.call('set_position', name=['wrist', 'elbow'], value=[1.0, 1.5])
+    assert not response.success
+    assert "joint 'elbow': position 1.5 is beyond its limits -1.0..1.2" in response.message
+    assert (h.reg(IDS['elbow'], 'goal_position'), h.reg(IDS['wrist'], 'goal_position')) == before
+
+
+def test_the_limits_are_the_servos_position_limits(h: NodeHarness) -> None:
+    # Reversed: the joint's max (1.2) is the servo's lowest angle, 0.5 - 1.2 = -0.7 rad.
+    low = XM430.position_to_rad(h.reg(IDS['elbow'], 'min_position_limit'))
+    high = XM430.position_to_rad(h.reg(IDS['elbow'], 'max_position_limit'))
+    assert low == pytest.approx(servo_of('elbow', 1.2), abs=0.003)
+    assert high == pytest.approx(servo_of('elbow', -1.0), abs=0.003)
+    # The limits in force are listed, in joint units, for a joint whose file gave none.
+    assert h.node is not None
+    shown = h.node.get_parameter('wrist.max_position').value
+    assert shown == pytest.approx(256 * 2 * math.pi / 3, rel=0.01)
+
+
+def test_a_trajectory_runs_in_joint_units(h: NodeHarness) -> None:
+    assert h.node is not None
+    msg = JointTrajectory()
+    msg.joint_names = ['elbow']
+    point = JointTrajectoryPoint()
+    point.positions = [-0.5]
+    point.time_from_start.sec = 1
+    msg.points.append(point)
+    assert h.node.arm.submit_trajectory(msg).success
+    h.wait_reg(IDS['elbow'], 'present_position',
+               lambda raw: abs(XM430.position_to_rad(raw) - servo_of('elbow', -0.5)) < 0.03)
+    # Beyond the joint's own limits: refused whole.
+    point.positions = [-1.1]
+    reply = h.node.arm.submit_trajectory(msg)
+    assert not reply.success and 'beyond its limits -1..1.19' in reply.message, reply
