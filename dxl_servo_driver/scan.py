@@ -281,6 +281,10 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
             params[f'{joint}.id'] = servo.servo_id
             params[f'{joint}.model'] = servo.table.name
             params[f'{joint}.operating_mode'] = servo.operating_mode
+            # The joint as the robot sees it: the servo's angle until the user says otherwise.
+            params[f'{joint}.offset'] = 0.0
+            params[f'{joint}.reverse'] = False
+            params[f'{joint}.ratio'] = 1.0
     if not joints:
         raise ValueError('no servo the node could drive (' + '; '.join(left_out) + ')')
     params['joints'] = joints
@@ -315,6 +319,13 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
         lines.append(f'      id: {params[joint + ".id"]}')
         lines.append(f'      model: {params[joint + ".model"]}')
         lines.append(f'      operating_mode: {params[joint + ".operating_mode"]}')
+        if joint + '.offset' in params:
+            lines.append(f'      offset: {params[joint + ".offset"]!r}  # rad: the URDF zero in '
+                         "the servo's radians (raw 2048 = 0)")
+            lines.append(f'      reverse: {str(params[joint + ".reverse"]).lower()}  # the joint '
+                         'turns against the servo')
+            lines.append(f'      ratio: {params[joint + ".ratio"]!r}  # joint units per servo '
+                         'radian (a 1:3 gearbox: 0.333...)')
     return '\n'.join(lines) + '\n'
 
 

@@ -167,7 +167,9 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
                     'joint_4.id': 4, 'joint_4.operating_mode': 'position',
                     'joint_4.model': 'XM430-W210',
                     'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position',
-                    'joint_9.model': 'XM430-W210'}
+                    'joint_9.model': 'XM430-W210',
+                    **{f'{joint}.{key}': value for joint in ('joint_4', 'joint_9')
+                       for key, value in (('offset', 0.0), ('reverse', False), ('ratio', 1.0))}}
     parsed = config.validate(flat)
     assert parsed.joint('joint_9').operating_mode == 'current_based_position'
     assert not list(tmp_path.glob('bus.yaml.tmp*'))
@@ -301,5 +303,8 @@ def test_the_rendered_file_parses_back_to_the_same_parameters() -> None:
         port, [servo(12, mode=1), servo(3, mode=4, model=1090)], 16.0)
     text = scan.render_parameter_file(params, comments, 'header')
     assert flatten(yaml.safe_load(text)) == params
+    # The joint's frame is there to be edited, at the values that leave the joint the servo.
+    assert params['joint_3.offset'] == 0.0 and params['joint_3.reverse'] is False
+    assert params['joint_3.ratio'] == 1.0 and '      reverse: false  #' in text
     assert config.validate(params).joint('joint_3').model.name == '2XL430-W250'
     assert config.validate(params).joint('joint_12').operating_mode == 'velocity'
