@@ -11,10 +11,14 @@ import math
 import time
 from typing import Any, Dict, Iterator
 
+from action_msgs.msg import GoalStatus
+from control_msgs.action import FollowJointTrajectory
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
+from rclpy.action import ActionClient
+from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 XM430 = units_for(model_for(1030))
@@ -26,6 +30,8 @@ FRAMES: Dict[str, Dict[str, Any]] = {
     'wrist': {'id': 2, 'operating_mode': 'extended_position', 'ratio': 1.0 / 3.0},
     # A reversed wheel.
     'wheel': {'id': 3, 'operating_mode': 'velocity', 'reverse': True},
+    # A reversed current-mode joint behind a 2:1 reduction (ratio 0.5): effort goes through both.
+    'hand': {'id': 4, 'operating_mode': 'current', 'reverse': True, 'ratio': 0.5},
 }
 IDS = {name: keys['id'] for name, keys in FRAMES.items()}
 
@@ -129,3 +135,67 @@ def test_a_trajectory_runs_in_joint_units(h: NodeHarness) -> None:
     point.positions = [-1.1]
     reply = h.node.arm.submit_trajectory(msg)
     assert not reply.success and 'beyond its limits -1..1.19' in reply.message, reply
+
+
+def wait_for(future: Any, timeout_s: float = 15.0) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while not future.done():
+        assert time.monotonic() < deadline, 'no answer'
+        time.sleep(0.005)
+    return future.result()
+
+
+def test_follow_joint_trajectory_speaks_joint_units(h: NodeHarness) -> None:
+    assert h.client is not None
+    client = ActionClient(h.client.node, FollowJointTrajectory,
+                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory')
+    assert client.wait_for_server(timeout_sec=10.0)
+    goal = FollowJointTrajectory.Goal()
+    goal.trajectory.joint_names = ['elbow', 'wrist']
+    point = JointTrajectoryPoint()
+    point.positions = [0.3, 1.0]
+    point.time_from_start.sec = 1
+    goal.trajectory.points.append(point)
+    start = [joint_of(name, servo_rad(h, name)) for name in ('elbow', 'wrist')]
+    assert abs(start[0] - 0.3) > 0.2, 'the elbow must have somewhere to go'
+    feedback: list = []
+    handle = wait_for(client.send_goal_async(goal, feedback_callback=feedback.append))
+    response = wait_for(handle.get_result_async())
+    assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.error_string
+    # Where the servos are, by the formula (the elbow's horn near 0.5 - 0.3, the wrist's near
+    # 3 rad), within the goal tolerance: 0.05 in joint units.
+    assert joint_of('elbow', servo_rad(h, 'elbow')) == pytest.approx(0.3, abs=0.05)
+    assert joint_of('wrist', servo_rad(h, 'wrist')) == pytest.approx(1.0, abs=0.05)
+    assert servo_rad(h, 'wrist') > 2.8   # 1 rad of joint took about 3 of the servo
+    # Feedback in joint units: the elbow's actual went from its start toward 0.3 (its servo
+    # went the other way), the last one nearer the end than the start.
+    last = feedback[-1].feedback
+    actual = last.actual.positions[0]
+    assert abs(actual - 0.3) < abs(start[0] - 0.3) / 2
+    assert (actual - start[0]) * (0.3 - start[0]) > 0
+    assert list(last.error.positions) == pytest.approx(
+        [d - a for d, a in zip(last.desired.positions, last.actual.positions)])
+
+
+def test_joint_command_effort_goes_through_ratio_and_reverse(h: NodeHarness) -> None:
+    assert h.client is not None
+    pub = h.client.node.create_publisher(
+        JointState, f'{h.namespace}/dxl_servo_driver/joint_command', 10)
+    deadline = time.monotonic() + 10.0
+    while pub.get_subscription_count() < 1:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    # 0.2 N*m at the joint is 0.1 N*m at the servo (2:1), the other way round (reversed).
+    pub.publish(JointState(name=['hand'], effort=[0.2]))
+    kt = XM430.torque_constant_nm_per_a
+    want = XM430.current_from_a(-0.2 * 0.5 / kt)
+    h.wait_reg(IDS['hand'], 'goal_current',
+               lambda raw: (raw - 2 ** 16 if raw >= 2 ** 15 else raw) == want)
+    # And joint_states' effort is the servo's torque brought back through the frame.
+    msg = h.joint_states.wait(lambda m: 'hand' in m.name)
+    i = list(msg.name).index('hand')
+    current = h.reg(IDS['hand'], 'present_current')
+    current = current - 2 ** 16 if current >= 2 ** 15 else current
+    expected = XM430.current_to_a(current) * kt / (-0.5)
+    assert msg.effort[i] == pytest.approx(expected, abs=0.05)
+    pub.publish(JointState(name=['hand'], effort=[0.0]))
