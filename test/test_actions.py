@@ -467,3 +467,44 @@ def test_a_gripper_goal_beyond_its_current_limit_is_refused(h: NodeHarness) -> N
     assert status == GoalStatus.STATUS_ABORTED
     time.sleep(0.1)
     assert (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current')) == before
+
+
+def test_the_arm_example_takes_moveits_two_actions() -> None:
+    """config/arm_sim.yaml, as `make run PARAMS=config/arm_sim.yaml` runs it."""
+    import pathlib
+    import yaml
+    from dxl_servo_driver.config import validate
+    from dxl_servo_driver.models import model_named
+    from dxl_servo_driver.models.units import JointFrame
+    from test_config import flatten
+    path = pathlib.Path(__file__).resolve().parent.parent / 'config' / 'arm_sim.yaml'
+    params = flatten(yaml.safe_load(path.read_text())['/**']['ros__parameters'])
+    config = validate(params)
+    arm = [joint.name for joint in config.joints if not joint.gripper]
+    # Each joint's position from its simulated servo's register, through the file's frame.
+    units = {joint.name: units_for(model_named(params[f'{joint.name}.model']),
+                                   frame=JointFrame(joint.offset, joint.reverse, joint.ratio))
+             for joint in config.joints}
+    ids = {joint.name: joint.servo_id for joint in config.joints}
+    with NodeHarness(params) as h:
+        h.joint_states.wait(lambda m: len(m.name) == len(config.joints))
+
+        def joint_rad(name: str) -> float:
+            return units[name].position_to_rad(h.reg(ids[name], 'present_position'))
+
+        target = [0.5, -0.4, 0.8, -0.3, 2.0]
+        start = [joint_rad(name) for name in arm]
+        plan = [(1.0, [(s + t) / 2 for s, t in zip(start, target)], []), (2.0, target, [])]
+        status, result = Goal(client_of(h), goal_of(arm, plan)).result()
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
+        for name, goal in zip(arm, target):
+            assert joint_rad(name) == pytest.approx(goal, abs=0.03), name   # goal_tolerance
+        # The belt-driven wrist roll: its horn turned twice as far as the joint.
+        horn = units_for(model_named('XL430-W250')).position_to_rad(
+            h.reg(ids['wrist_roll'], 'present_position'))
+        assert horn == pytest.approx(4.0, abs=0.06)
+        status, result = Goal(gripper_client(h), grip(1.0)).result()
+        assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
+        assert result.position == pytest.approx(1.0, abs=0.03)
+        # Reached on the way in; the XL330 may overshoot a little before it settles.
+        assert joint_rad('gripper') == pytest.approx(1.0, abs=0.08)
