@@ -53,7 +53,7 @@ class ParamSpec:
     threshold: bool = False    # a diagnostics threshold, checked against its pair
     restart: bool = False      # fixes which parameters exist: changed only by a restart
     shown: str = ''            # the default as the README says it, when it is not a value
-    only_for: str = ''         # a joint key only a joint with this key true has (gripper)
+    only_for: str = ''         # a joint key only a joint with this key set has (gripper)
     noun: str = ''             # what an error calls a value of it ('unknown <noun> ...')
 
 
@@ -171,6 +171,20 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               '', -1e6, 1e6, shown="the servo's limit"),
     ParamSpec('max_position', float, None, 'The highest position the joint is sent to (as '
               'min_position).', '', -1e6, 1e6, shown="the servo's limit"),
+    ParamSpec('secondary_id', int, -1,
+              'A second servo on the same joint (a shoulder driven from both sides): it gets '
+              'every goal in the same sync write, is configured, enabled, switched and disabled '
+              'with the first, and is watched against it. -1: none.', '', -1, MAX_ID),
+    ParamSpec('secondary_reverse', bool, False,
+              'The second servo turns against the joint (mounted mirrored).',
+              only_for='secondary_id'),
+    ParamSpec('secondary_offset', float, None,
+              "The joint's 0 in the second servo's radians.", 'rad', -1e4, 1e4,
+              shown='offset', only_for='secondary_id'),
+    ParamSpec('secondary_tolerance', float, 0.1,
+              'How far the two servos of a joint may disagree (joint units): beyond, '
+              'diagnostics WARN; beyond twice this, both torque off with an ERROR (a slipping '
+              'shaft must not fight itself).', '', 1e-4, 100.0, only_for='secondary_id'),
     ParamSpec('path_tolerance', float, 0.0,
               'How far the joint may be from the setpoint while a trajectory runs before it '
               'ends and holds (an action goal: PATH_TOLERANCE_VIOLATED; the goal may say '
@@ -218,6 +232,23 @@ class JointConfig:
     ratio: float = 1.0
     min_position: Optional[float] = None
     max_position: Optional[float] = None
+    # A second servo on the joint: its id, whether it turns against the joint, its own offset
+    # (None: the joint's), and how far the two may disagree (joint units).
+    secondary_id: Optional[int] = None
+    secondary_reverse: bool = False
+    secondary_offset: Optional[float] = None
+    secondary_tolerance: float = 0.1
+    # Set on the secondary's own configuration: the joint it belongs to.
+    secondary_of: str = ''
+
+    def secondary(self) -> 'JointConfig':
+        """Return the configuration of the joint's second servo (secondary_id must be set)."""
+        assert self.secondary_id is not None
+        offset = self.offset if self.secondary_offset is None else self.secondary_offset
+        return dataclasses.replace(
+            self, name=f'{self.name} (secondary)', servo_id=self.secondary_id,
+            offset=offset, reverse=self.secondary_reverse, gripper=False, secondary_id=None,
+            secondary_of=self.name)
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
@@ -331,10 +362,20 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
     ids: Dict[int, str] = {}
     for name in joint_names:
         joint = _joint(params, name)
-        if joint.servo_id in ids:
-            raise ConfigError(f'{name}.id', f'id {joint.servo_id} is already used by joint '
-                              f'{ids[joint.servo_id]!r}')
-        ids[joint.servo_id] = name
+        for key, servo_id in (('id', joint.servo_id), ('secondary_id', joint.secondary_id)):
+            if servo_id is None:
+                continue
+            if servo_id in ids:
+                raise ConfigError(f'{name}.{key}', f'id {servo_id} is already used by joint '
+                                  f'{ids[servo_id]!r}')
+            ids[servo_id] = name
+        if joint.secondary_id is None:
+            for key in ('secondary_reverse', 'secondary_offset', 'secondary_tolerance'):
+                if f'{name}.{key}' in params:
+                    raise ConfigError(f'{name}.{key}', f'only a joint with a {name}.secondary_id '
+                                      'has this')
+        elif joint.gripper:
+            raise ConfigError(f'{name}.secondary_id', 'a gripper has one servo')
         joints.append(joint)
     return DriverConfig(joints=tuple(joints), **values)
 
@@ -397,11 +438,20 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
                         gripper, ends[0], ends[1], _joint_value(params, name, 'path_tolerance'),
                         _joint_value(params, name, 'goal_tolerance'),
-                        *_frame_and_limits(params, name, registers))
+                        *_frame_and_limits(params, name, registers),
+                        *_secondary(params, name))
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
     return joint
+
+
+def _secondary(params: Mapping[str, Any], name: str) -> Tuple[Any, ...]:
+    """Return (secondary_id or None, reverse, offset, tolerance) of a joint."""
+    servo_id = _joint_value(params, name, 'secondary_id')
+    return (None if servo_id == -1 else servo_id,
+            *[_joint_value(params, name, key)
+              for key in ('secondary_reverse', 'secondary_offset', 'secondary_tolerance')])
 
 
 def _frame_and_limits(params: Mapping[str, Any], name: str,

@@ -27,6 +27,7 @@ from dxl_servo_driver.driver.context import Context, Logs, Stats
 from dxl_servo_driver.driver.cycle import Cycle, SILENT_AFTER_FAILURES
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.link import Link
+from dxl_servo_driver.driver.pairs import Pairs
 from dxl_servo_driver.driver.port_watch import PortWatch
 from dxl_servo_driver.driver.recovery import Recovery
 from dxl_servo_driver.driver.services import Services
@@ -67,7 +68,9 @@ class Manager:
         self._ctx = ctx
         self.lock = ctx.lock
         self.servos = roster.by_name
-        self.order = roster.order
+        self.order = roster.order        # every servo on the bus (second servos included)
+        self.joints = roster.joints      # one servo per joint: what ROS sees
+        self.secondary = roster.secondary
         self.tasks = ctx.tasks
         self._goals = Goals(ctx)
         self._cycle = Cycle(ctx, self._goals)
@@ -76,6 +79,7 @@ class Manager:
         self._ports = PortWatch(ctx, port_factory, self._recovery, self._goals, self._cycle)
         self._services = Services(ctx, self._setup, self._goals, self._cycle, self._recovery,
                                   self._ports)
+        self.pairs = Pairs(ctx, lambda names: self._services.set_torque(names, False))
 
     # what the node reads and sets ---------------------------------------------------------
     @property
@@ -298,6 +302,7 @@ class Manager:
                 return
             try:
                 self.check_command_timeout()
+                self.pairs.check()
                 self.write_pending()
                 self.recover_hardware_errors()
                 if tasks_until is not None:
@@ -329,6 +334,19 @@ class Manager:
             return 'is not on the bus'
         if self._ctx.port.lost:
             return f'cannot be driven: the port is lost ({self._ctx.port.error})'
+        tripped = self.pairs.trouble(name)
+        if tripped:
+            return f'is off: {tripped}'
+        second = self.secondary.get(name)
+        if second is not None:
+            why = self._servo_trouble(second)
+            if why:
+                return f'has a second servo that {why}'
+        return self._servo_trouble(servo)
+
+    def _servo_trouble(self, servo: Servo) -> str:
+        if not servo.online:
+            return 'is not on the bus'
         if servo.name in self.tasks:
             return f'is {servo.status or "busy"}'
         if servo.consecutive_failures >= SILENT_AFTER_FAILURES:
@@ -354,8 +372,11 @@ class Manager:
         return self._services.command_now(kind, names, values)
 
     def set_torque(self, names: Sequence[str], enable: bool) -> Result:
-        """Torque on (goal = present first) or off."""
-        return self._services.set_torque(names, enable)
+        """Torque on (goal = present first) or off; on forgives a pair that disagreed."""
+        result = self._services.set_torque(names, enable)
+        if enable and result.success:
+            self.pairs.clear(names)
+        return result
 
     def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
         """Torque off, mode, what a mode change resets re-applied, goal = present, torque back."""

@@ -90,8 +90,11 @@ def _sim(config: DriverConfig) -> Transport:
     sim_bus = importlib.import_module('dxl_servo_driver.sim.bus')
     sim_port = importlib.import_module('dxl_servo_driver.sim.port')
     setup = importlib.import_module('dxl_servo_driver.sim.virtual_bus')
-    ids = [joint.servo_id for joint in config.joints]
-    chosen = {joint.servo_id: joint.model for joint in config.joints if joint.model is not None}
+    # Every servo of the configuration: a joint's second servo (secondary_id) too.
+    servos = list(config.joints) + [
+        joint.secondary() for joint in config.joints if joint.secondary_id is not None]
+    ids = [joint.servo_id for joint in servos]
+    chosen = {joint.servo_id: joint.model for joint in servos if joint.model is not None}
     simulator = sim_bus.SimBus(ids, models=chosen) if chosen else sim_bus.SimBus(ids)
     setup.configure_servos(simulator, config.baud_rate, None)
     return SimTransport(

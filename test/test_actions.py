@@ -499,6 +499,12 @@ def test_the_arm_example_takes_moveits_two_actions() -> None:
         assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
         for name, goal in zip(arm, target):
             assert joint_rad(name) == pytest.approx(goal, abs=0.03), name   # goal_tolerance
+        # The shoulder's second servo (id 7, facing the other way) went with the joint.
+        second = units_for(model_named('XM540-W270'),
+                           frame=JointFrame(0.0, False, 1.0)).position_to_rad(
+                               h.reg(7, 'present_position'))
+        assert second == pytest.approx(target[1], abs=0.03)
+        assert joint_rad('shoulder_lift') == pytest.approx(second, abs=0.03)
         # The belt-driven wrist roll: its horn turned twice as far as the joint.
         horn = units_for(model_named('XL430-W250')).position_to_rad(
             h.reg(ids['wrist_roll'], 'present_position'))

@@ -30,7 +30,11 @@ def _row(spec: ParamSpec, name: str) -> str:
     default = f'`{default}`' if not spec.shown else default
     kind = _KINDS.get(spec.kind.__name__, spec.kind.__name__)
     when = ' Changes at run time.' if spec.runtime else ''
-    only = f' Only for `<joint>.{spec.only_for}: true`.' if spec.only_for else ''
+    only = ''
+    if spec.only_for:
+        switch = {joint.name: joint.kind for joint in JOINT_PARAMS}[spec.only_for]
+        only = (f' Only for `<joint>.{spec.only_for}: true`.' if switch is bool
+                else f' Only with `<joint>.{spec.only_for}` set.')
     return (f'| `{name}` | {kind} | {default} | {spec.unit} | {allowed} | '
             f'{spec.description}{when}{only} |')
 

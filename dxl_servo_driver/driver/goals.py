@@ -63,41 +63,55 @@ class Goals:
             servo = self._roster.by_name.get(name)
             if servo is None:
                 raise BadRequest(f'unknown joint {name!r}')
-            if not servo.online:
-                raise BadRequest(f'joint {name!r} is not on the bus (missing at configure)')
-            if not math.isfinite(value):
-                raise BadRequest(f'joint {name!r}: {value} is not a finite number')
-            if servo.switching:
-                raise Refused(f'joint {name!r} is changing its operating mode: try again')
-            if servo.name in self._tasks:
-                raise Refused(f'joint {name!r} is {servo.status or "busy"}: it takes goals '
+            if servo.joint.secondary_of:
+                raise BadRequest(f'{name!r} is the second servo of joint '
+                                 f'{servo.joint.secondary_of!r}: command the joint')
+            goals.extend(self._goal(servo, kind, value))
+        return goals
+
+    def _goal(self, servo: Servo, kind: str, value: float) -> List[Tuple[Servo, str, int]]:
+        """Return one joint's goal as (servo, register, raw): its second servo's too."""
+        name = servo.name
+        if not math.isfinite(value):
+            raise BadRequest(f'joint {name!r}: {value} is not a finite number')
+        if abs(value) > 1e9:
+            raise BadRequest(f'joint {name!r}: {value} is out of any range')
+        if kind == 'position':
+            low, high = servo.joint.min_position, servo.joint.max_position
+            if (low is not None and value < low) or (high is not None and value > high):
+                raise BadRequest(
+                    f'joint {name!r}: position {value:g} is beyond its limits '
+                    f'{low if low is not None else "-inf"}..'
+                    f'{high if high is not None else "inf"} (min_position, max_position)')
+        second = self._roster.secondary.get(name)
+        goals = []
+        for target in (servo, second) if second is not None else (servo,):
+            # The second servo is said as such: 'joint 'lift (secondary)' is rebooting'.
+            which = target.name
+            if not target.online:
+                raise BadRequest(f'joint {which!r} is not on the bus (missing at configure)')
+            if target.switching:
+                raise Refused(f'joint {which!r} is changing its operating mode: try again')
+            if target.name in self._tasks:
+                raise Refused(f'joint {which!r} is {target.status or "busy"}: it takes goals '
                               'again once that is done')
-            command = servo.units.kinds.get(kind)
+            command = target.units.kinds.get(kind)
             if command is None:
-                raise BadRequest(f'joint {name!r} is a {servo.model.name}, which has no '
+                raise BadRequest(f'joint {which!r} is a {target.model.name}, which has no '
                                  f'{modes.GOAL_REGISTERS[kind]} register (no {kind} control); '
-                                 f'its commands: {", ".join(sorted(servo.units.kinds))}')
-            if kind not in modes.BY_NAME[servo.mode].commands:
-                raise BadRequest(f'joint {name!r} is in {servo.mode} mode: {kind} commands '
+                                 f'its commands: {", ".join(sorted(target.units.kinds))}')
+            if kind not in modes.BY_NAME[target.mode].commands:
+                raise BadRequest(f'joint {which!r} is in {target.mode} mode: {kind} commands '
                                  'do not apply to it')
-            if abs(value) > 1e9:
-                raise BadRequest(f'joint {name!r}: {value} {command.unit} is out of any range')
-            if kind == 'position':
-                low, high = servo.joint.min_position, servo.joint.max_position
-                if (low is not None and value < low) or (high is not None and value > high):
-                    raise BadRequest(
-                        f'joint {name!r}: position {value:g} is beyond its limits '
-                        f'{low if low is not None else "-inf"}..'
-                        f'{high if high is not None else "inf"} (min_position, max_position)')
-            offset = servo.turn_offset if kind == 'position' else 0
+            offset = target.turn_offset if kind == 'position' else 0
             raw = command.to_raw(value) - offset
-            clamped = _clamp(servo, command.register, raw)
+            clamped = _clamp(target, command.register, raw)
             if clamped != raw:
                 self._warn_throttled(
-                    f'clamp:{name}:{kind}',
-                    f'joint {name!r}: {kind} goal {value:g} {command.unit} clamped to '
+                    f'clamp:{which}:{kind}',
+                    f'joint {which!r}: {kind} goal {value:g} {command.unit} clamped to '
                     f'{command.to_si(clamped + offset):g} {command.unit} (servo limit)')
-            goals.append((servo, command.register, clamped))
+            goals.append((target, command.register, clamped))
         return goals
 
     def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:

@@ -66,7 +66,7 @@ class Services:
                 return Result(False, f'goals not written: {exc}')
             return Result(True, f'{len(names)} {kind} goals written')
 
-    def _servos_named(self, names: Sequence[str]) -> List[Servo]:
+    def _servos_named(self, names: Sequence[str], one: bool = False) -> List[Servo]:
         if self._port.lost:
             raise Refused(f'the port is lost ({self._port.error}); try again when it is back')
         if not names:
@@ -77,9 +77,16 @@ class Services:
                 servo = self._roster.by_name.get(name)
                 if servo is None:
                     raise BadRequest(f'unknown joint {name!r}')
+                if servo.joint.secondary_of and not one:
+                    raise BadRequest(f'{name!r} is the second servo of joint '
+                                     f'{servo.joint.secondary_of!r}: name the joint')
                 if not servo.online:
                     raise BadRequest(f'joint {name!r} is not on the bus')
                 servos.append(servo)
+            # A joint's two servos are enabled, switched, rebooted and disabled together.
+            if not one:
+                servos = [servo for servo in self._roster.with_secondaries(servos)
+                          if servo.online]
         for servo in servos:
             if servo.name in self._tasks:
                 raise Refused(f'joint {servo.name!r} is {servo.status or "busy"}: try again in a '
@@ -89,7 +96,8 @@ class Services:
     def _one_named(self, name: str) -> Servo:
         if not name:
             raise BadRequest('no joint named')
-        return self._servos_named([name])[0]
+        # One servo (a register service): a joint's second servo may be named on its own.
+        return self._servos_named([name], one=True)[0]
 
     def _request(self, what: str, action: Callable[[], Result]) -> Result:
         """Run a service's bus work: a lost port is handled, a bus failure is the answer."""

@@ -149,12 +149,31 @@ def frame_of(joint: JointConfig) -> JointFrame:
 
 
 class Roster:
-    """The configured servos: by joint name, in configuration order, by id."""
+    """
+    The configured servos: by name, in configuration order, by id.
+
+    `joints` are the joints' servos, in the order of joint_states; `order` is every servo on
+    the bus, the second servos of joints that have one (`secondary_id`) after them: what is
+    read, configured, enabled and switched off. `secondary` maps a joint to its second servo.
+    """
 
     def __init__(self, joints: Sequence[JointConfig]) -> None:
-        self.by_name: Dict[str, Servo] = {joint.name: Servo.of(joint) for joint in joints}
-        self.order: List[Servo] = [self.by_name[joint.name] for joint in joints]
+        self.joints: List[Servo] = [Servo.of(joint) for joint in joints]
+        self.secondary: Dict[str, Servo] = {
+            joint.name: Servo.of(joint.secondary()) for joint in joints
+            if joint.secondary_id is not None}
+        self.order: List[Servo] = self.joints + list(self.secondary.values())
+        self.by_name: Dict[str, Servo] = {servo.name: servo for servo in self.order}
         self.by_id: Dict[int, Servo] = {servo.servo_id: servo for servo in self.order}
+
+    def with_secondaries(self, servos: Sequence[Servo]) -> List[Servo]:
+        """Return the servos and the second servos of their joints (what moves together)."""
+        out = list(servos)
+        for servo in servos:
+            second = self.secondary.get(servo.name)
+            if second is not None and second not in out:
+                out.append(second)
+        return out
 
     def active(self) -> List[Servo]:
         """Return the servos that answered at configure."""

@@ -74,7 +74,7 @@ class Arm:
     def limits(self) -> Dict[str, traj.Limits]:
         """Return what a trajectory is checked against: each joint's mode and range (rad)."""
         limits = {}
-        for servo in self._host.manager.order:
+        for servo in self._host.manager.joints:
             low, high = servo.joint_position_range()
             limits[servo.name] = traj.Limits(servo.mode, low, high, servo.online)
         return limits

@@ -48,8 +48,19 @@ def diagnostics(node_name: str, config: DriverConfig, manager: Manager, facts: C
         status = _servo_status(node_name, config, servo, thresholds)
         if grasping is not None and servo.name in grasping:
             status.values.append(KeyValue(key='grasping', value=str(grasping[servo.name])))
+        pair = manager.pairs.facts(servo.name)
+        if pair:
+            # A joint on two servos: how far apart they are, at the level that says it.
+            level, text = pair
+            status.values.append(KeyValue(key='secondary_apart', value=text))
+            if level != 'ok' and status.level < _LEVELS[level]:
+                status.level = _LEVELS[level]
+                status.message = text
         array.status.append(status)
     return array
+
+
+_LEVELS = {'warn': DiagnosticStatus.WARN, 'error': DiagnosticStatus.ERROR}
 
 
 def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: CycleFacts,

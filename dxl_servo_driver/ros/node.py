@@ -77,7 +77,7 @@ class DriverNode(LifecycleNode):
                                    self.arm.prepare_goals)
         self._take_rates(self.config)
         self._last_state_s = 0.0
-        self._joints = JointTable(self.manager.order)
+        self._joints = JointTable(self.manager.joints)
         # joint_states and servo_states exist while configured (lifecycle publishers: they
         # publish only while active); /diagnostics always, it says why nothing else does.
         self.joint_states_pub: Any = None
@@ -227,11 +227,11 @@ class DriverNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         # The servos said which model they are: their conversions are known now, and the
         # values the configuration left to them are shown (ros2 param get).
-        self._joints = JointTable(self.manager.order)
+        self._joints = JointTable(self.manager.joints)
         self._from_servos = {
             f'{servo.name}.torque_constant': servo.units.torque_constant_nm_per_a
-            for servo in self.manager.order if servo.joint.torque_constant_nm_per_a is None}
-        for servo in self.manager.order:
+            for servo in self.manager.joints if servo.joint.torque_constant_nm_per_a is None}
+        for servo in self.manager.joints:
             # The limits in force when the file gives none: the servo's, in joint units.
             low, high = servo.joint_position_range()
             for key, value in (('min_position', low), ('max_position', high)):
@@ -285,7 +285,7 @@ class DriverNode(LifecycleNode):
     def what_to_try(self) -> List[str]:
         """Return an echo of joint_states and a goal for a position and a velocity joint."""
         ns = self.get_fully_qualified_name()
-        by_mode = {servo.mode: servo.name for servo in reversed(self.manager.order)}
+        by_mode = {servo.mode: servo.name for servo in reversed(self.manager.joints)}
         lines = [f'ros2 topic echo {self.resolve_topic_name("joint_states")}']
         # A velocity goal needs fresh commands when command_timeout is set: a stream.
         for mode, how, value in (('position', '--once', 0.5), ('velocity', '-r 10', 1.0)):

@@ -65,7 +65,7 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
     for joint in config.joints:
         values = _joint_values(joint)
         for spec in cfg.JOINT_PARAMS:
-            if spec.only_for and not values.get(spec.only_for):
+            if spec.only_for and values.get(spec.only_for) in (None, False, -1):
                 continue
             value = values[spec.name]
             if value is not None:   # else a value only the servo gives: declared once known
@@ -93,7 +93,12 @@ def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
             'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed,
             'path_tolerance': joint.path_tolerance, 'goal_tolerance': joint.goal_tolerance,
             'offset': joint.offset, 'reverse': joint.reverse, 'ratio': joint.ratio,
-            'min_position': joint.min_position, 'max_position': joint.max_position}
+            'min_position': joint.min_position, 'max_position': joint.max_position,
+            'secondary_id': -1 if joint.secondary_id is None else joint.secondary_id,
+            'secondary_reverse': joint.secondary_reverse,
+            'secondary_offset': (joint.offset if joint.secondary_offset is None
+                                 else joint.secondary_offset),
+            'secondary_tolerance': joint.secondary_tolerance}
 
 
 def coerce(params: List[Parameter]) -> List[Parameter]:
