@@ -188,16 +188,16 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('path_tolerance', float, 0.0,
               'How far the joint may be from the setpoint while a trajectory runs before it '
               'ends and holds (an action goal: PATH_TOLERANCE_VIOLATED; the goal may say '
-              'otherwise). 0: not checked.', 'rad', 0.0, 10.0),
+              'otherwise). 0: not checked.', 'rad (m)', 0.0, 10.0),
     ParamSpec('goal_tolerance', float, 0.0,
               "This joint's goal tolerance for trajectories (see the top-level goal_tolerance, "
-              'which 0 leaves in force).', 'rad', 0.0, 10.0),
+              'which 0 leaves in force).', 'rad (m)', 0.0, 10.0),
     ParamSpec('gripper', bool, False,
               'A gripper (current_based_position only): ~/gripper commands, grasp detection.'),
     ParamSpec('gripper_open', float, 0.0, 'The position of ratio 0 in ~/gripper commands.',
-              'rad', only_for='gripper'),
+              'rad (m)', only_for='gripper'),
     ParamSpec('gripper_closed', float, 0.0, 'The position of ratio 1 in ~/gripper commands.',
-              'rad', only_for='gripper'),
+              'rad (m)', only_for='gripper'),
 )
 JOINT_PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in JOINT_PARAMS}
 JOINT_KEYS: Tuple[str, ...] = tuple(JOINT_PARAMS_BY_NAME)

@@ -71,17 +71,23 @@ def gripper_goal(spec: GripperSpec, position: float, ratio: float,
 
 
 class GraspDetector:
-    """Grasp of one gripper: stalled short of its goal, at its current limit, long enough."""
+    """
+    Grasp of one gripper: stalled short of its goal, at its current limit, long enough.
 
-    def __init__(self) -> None:
+    Positions and velocities are the joint's; scale (joint units per servo radian) puts the
+    thresholds, which are the servo's, in them.
+    """
+
+    def __init__(self, scale: float = 1.0) -> None:
         self._stalled_since: Optional[float] = None
+        self._scale = abs(scale)
         self.grasping = False
 
     def update(self, now_s: float, position: float, velocity: float, current: float,
                goal_position: float, goal_current: float) -> bool:
         """Take one sample; return whether the gripper holds an object now."""
-        stalled = abs(velocity) < STALL_RAD_S
-        short = abs(goal_position - position) > SHORT_OF_GOAL_RAD
+        stalled = abs(velocity) < STALL_RAD_S * self._scale
+        short = abs(goal_position - position) > SHORT_OF_GOAL_RAD * self._scale
         limited = goal_current > 0.0 and abs(current) >= AT_LIMIT * goal_current
         if stalled and short and limited:
             if self._stalled_since is None:
@@ -149,8 +155,9 @@ class GripperRun:
     """
 
     def __init__(self, joint: str, goal_rad: float, goal_raw: int, tolerance_rad: float,
-                 listener: GripperListener, now_s: float) -> None:
+                 listener: GripperListener, now_s: float, scale: float = 1.0) -> None:
         self.joint = joint
+        self._still_below = STALL_RAD_S * abs(scale)   # joint units per second
         self.goal_rad = goal_rad
         self.goal_raw = goal_raw
         self.tolerance_rad = tolerance_rad
@@ -188,7 +195,7 @@ class GripperRun:
         if grasping:
             return GripperOutcome(STALLED, f'stalled at {position:.4f} rad holding '
                                   f'{effort:.3f} N*m: an object in its grip', sample)
-        if abs(velocity) < STALL_RAD_S:
+        if abs(velocity) < self._still_below:
             if self._still_since is None:
                 self._still_since = now_s
             elif now_s - self._still_since >= STOPPED_S:

@@ -12,7 +12,7 @@ import time
 from typing import Any, Dict, Iterator
 
 from action_msgs.msg import GoalStatus
-from control_msgs.action import FollowJointTrajectory
+from control_msgs.action import FollowJointTrajectory, GripperCommand
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
@@ -32,6 +32,10 @@ FRAMES: Dict[str, Dict[str, Any]] = {
     'wheel': {'id': 3, 'operating_mode': 'velocity', 'reverse': True},
     # A reversed current-mode joint behind a 2:1 reduction (ratio 0.5): effort goes through both.
     'hand': {'id': 4, 'operating_mode': 'current', 'reverse': True, 'ratio': 0.5},
+    # A linear gripper: a rack and pinion of 1 cm per servo radian, its joint in m and N.
+    'finger': {'id': 5, 'operating_mode': 'current_based_position', 'ratio': 0.01,
+               'gripper': True, 'gripper_open': 0.0, 'gripper_closed': 0.012,
+               'goal_tolerance': 0.0005},   # m: tolerances are in the joint's units too
 }
 IDS = {name: keys['id'] for name, keys in FRAMES.items()}
 
@@ -199,3 +203,30 @@ def test_joint_command_effort_goes_through_ratio_and_reverse(h: NodeHarness) -> 
     expected = XM430.current_to_a(current) * kt / (-0.5)
     assert msg.effort[i] == pytest.approx(expected, abs=0.05)
     pub.publish(JointState(name=['hand'], effort=[0.0]))
+
+
+def test_a_linear_gripper_takes_metres_and_newtons(h: NodeHarness) -> None:
+    assert h.client is not None
+    client = ActionClient(h.client.node, GripperCommand,
+                          f'{h.namespace}/dxl_servo_driver/gripper_cmd')
+    assert client.wait_for_server(timeout_sec=10.0)
+    goal = GripperCommand.Goal()
+    goal.command.position = 0.008   # m: the servo turns 0.8 rad
+    response = wait_for(wait_for(client.send_goal_async(goal)).get_result_async())
+    assert response.status == GoalStatus.STATUS_SUCCEEDED and response.result.reached_goal
+    assert servo_rad(h, 'finger') == pytest.approx(0.8, abs=0.06)   # 0.5 mm = 0.05 rad
+    assert response.result.position == pytest.approx(0.008, abs=0.0006)
+    # An object in the way, 0.3 A of grip: 0.3 A * 1.783 N*m/A over 0.01 m/rad = 53.5 N.
+    kt = XM430.torque_constant_nm_per_a
+    h.sim.set_load(IDS['finger'], 3.0)
+    try:
+        goal.command.position = 0.012
+        goal.command.max_effort = 0.3 * kt / 0.01
+        response = wait_for(wait_for(client.send_goal_async(goal)).get_result_async())
+        result = response.result
+        assert response.status == GoalStatus.STATUS_SUCCEEDED, result
+        assert result.stalled and not result.reached_goal
+        assert h.reg(IDS['finger'], 'goal_current') == XM430.current_from_a(0.3)
+        assert result.effort == pytest.approx(goal.command.max_effort, rel=0.3)
+    finally:
+        h.sim.set_load(IDS['finger'], 0.0)

@@ -52,7 +52,8 @@ class Arm:
 
     def take(self, config: cfg.DriverConfig) -> None:
         """Take a new configuration's grippers (configure after parameters changed)."""
-        self.grasps = {joint.name: GraspDetector() for joint in config.joints if joint.gripper}
+        self.grasps = {joint.name: GraspDetector(joint.ratio) for joint in config.joints
+                       if joint.gripper}
 
     # trajectories ---------------------------------------------------------------------------
     def _present_rad(self, name: str) -> Optional[float]:
@@ -226,7 +227,7 @@ class Arm:
             raise GripperError(queued.message)
         tolerance = servo.joint.goal_tolerance or self._host.config.goal_tolerance
         run = gripper.GripperRun(name, goal, checked.value[0][2], tolerance, listener,
-                                 time.monotonic())
+                                 time.monotonic(), servo.joint.ratio)
         with self._gripper_lock:
             old = self.gripper_runs.get(name)
             self.gripper_runs[name] = run
