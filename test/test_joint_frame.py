@@ -36,6 +36,12 @@ FRAMES: Dict[str, Dict[str, Any]] = {
     'finger': {'id': 5, 'operating_mode': 'current_based_position', 'ratio': 0.01,
                'gripper': True, 'gripper_open': 0.0, 'gripper_closed': 0.012,
                'goal_tolerance': 0.0005},   # m: tolerances are in the joint's units too
+    # Multi-turn at start, with limits only a single-turn mode writes to the servo.
+    'tilt': {'id': 6, 'operating_mode': 'extended_position', 'min_position': -1.0,
+             'max_position': 1.0},
+    # Limits wider than one turn: position mode cannot hold them.
+    'spin': {'id': 7, 'operating_mode': 'extended_position', 'min_position': -4.0,
+             'max_position': 4.0},
 }
 IDS = {name: keys['id'] for name, keys in FRAMES.items()}
 
@@ -230,3 +236,20 @@ def test_a_linear_gripper_takes_metres_and_newtons(h: NodeHarness) -> None:
         assert result.effort == pytest.approx(goal.command.max_effort, rel=0.3)
     finally:
         h.sim.set_load(IDS['finger'], 0.0)
+
+
+def test_a_switch_into_position_mode_writes_the_joints_limits(h: NodeHarness) -> None:
+    tilt = IDS['tilt']
+    default_high = h.reg(tilt, 'max_position_limit')
+    assert default_high != XM430.position_from_rad(1.0)   # extended mode: not written
+    response = h.call('set_operating_mode', name=['tilt'], mode='position')
+    assert response.success, response.message
+    assert h.reg(tilt, 'min_position_limit') == XM430.position_from_rad(-1.0)
+    assert h.reg(tilt, 'max_position_limit') == XM430.position_from_rad(1.0)
+    assert h.call('set_operating_mode', name=['tilt'], mode='extended_position').success
+    # Limits a single turn cannot hold: the switch is refused before anything changes.
+    response = h.call('set_operating_mode', name=['spin'], mode='position')
+    assert not response.success
+    assert "joint 'spin': min_position -4 is servo position" in response.message
+    assert h.reg(IDS['spin'], 'operating_mode') == 4
+    assert h.reg(IDS['spin'], 'torque_enable') == 1

@@ -116,8 +116,15 @@ def test_servos_that_fight_are_both_switched_off(h: NodeHarness) -> None:
         assert 'disagreed' in h.node.manager.joint_trouble('lift')
     finally:
         h.sim.set_load(SECOND, 0.0)
-    # Put right by hand, then enabled again: forgiven.
+    # The brake gone, enabled again: the second servo goes to where the first is, and once they
+    # agree (and after the settling second) the pair is sound.
+    apart = abs(rad(h, FIRST) + rad(h, SECOND))
     assert h.call('set_torque', name=['lift'], enable=True).success
+    deadline = time.monotonic() + 3.0
+    while abs(rad(h, FIRST) + rad(h, SECOND)) > 0.02:
+        assert time.monotonic() < deadline, f'still {apart:.3f} rad apart'
+        time.sleep(0.01)
+    time.sleep(1.2)   # past the settling time: judged again, and agreeing
     assert h.node.manager.joint_trouble('lift') == ''
     assert h.reg(FIRST, 'torque_enable') == 1 and h.reg(SECOND, 'torque_enable') == 1
 

@@ -22,6 +22,9 @@ from dxl_servo_driver.driver.servo import IDX_POSITION, Result, Throttle
 
 __all__ = ['Pairs']
 
+# After a pair is enabled again, how long its two servos have to agree before it is judged.
+SETTLE_S = 1.0
+
 
 class Pairs:
     """The two-servo joints of one bus and what their last samples said."""
@@ -34,6 +37,8 @@ class Pairs:
         self.apart: Dict[str, float] = {}
         # Per joint switched off for disagreeing: why.
         self.tripped: Dict[str, str] = {}
+        # Per joint enabled again after that: until when the two may still be coming together.
+        self._settling: Dict[str, float] = {}
 
     def check(self) -> None:
         """Compare each pair on this cycle's samples; switch both off when they fight."""
@@ -46,6 +51,12 @@ class Pairs:
                       - second.position_rad(second.state[IDX_POSITION]))
             self.apart[name] = gap
             tolerance = first.joint.secondary_tolerance
+            settling = self._settling.get(name)
+            if settling is not None:
+                if gap <= tolerance or self._ctx.clock() >= settling:
+                    del self._settling[name]
+                else:
+                    continue   # the second servo is on its way to the first (set_torque)
             if name in self.tripped or gap <= tolerance:
                 continue
             if gap <= 2.0 * tolerance:
@@ -61,9 +72,15 @@ class Pairs:
                 ' (enable its torque again once the joint is sound)')
 
     def clear(self, names: Sequence[str]) -> None:
-        """Forget why joints were switched off (their torque is being enabled again)."""
+        """
+        Forget why joints were switched off (their torque was enabled again).
+
+        Their two servos get SETTLE_S to come back together (the second goes to where the first
+        is) before a disagreement switches them off again.
+        """
         for name in names or list(self.tripped):
-            self.tripped.pop(name, None)
+            if self.tripped.pop(name, None) is not None:
+                self._settling[name] = self._ctx.clock() + SETTLE_S
 
     def trouble(self, name: str) -> str:
         """Return why a joint is off for its pair ('' when it is not)."""

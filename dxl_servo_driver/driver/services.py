@@ -16,8 +16,8 @@ from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.port_watch import PortWatch
 from dxl_servo_driver.driver.recovery import Recovery
-from dxl_servo_driver.driver.servo import Result, run, Servo
-from dxl_servo_driver.driver.setup import Setup
+from dxl_servo_driver.driver.servo import clamp_position, Result, run, Servo
+from dxl_servo_driver.driver.setup import position_limit_registers, Setup
 from dxl_servo_driver.errors import BadRequest, CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.tasks import Task
@@ -125,10 +125,25 @@ class Services:
                             run(self._setup.hold(servo))
                         else:
                             self._link.write(servo, 'torque_enable', 0)
+                    if enable:
+                        self._join_pairs(servos)
                 except CommError as exc:
                     return Result(False, f'torque {word} failed: {exc}')
                 return Result(True, f'torque {word} for {", ".join(s.name for s in servos)}')
             return self._request(f'torque {word}', action)
+
+    def _join_pairs(self, servos: Sequence[Servo]) -> None:
+        """Send each second servo just enabled to where its joint's first servo is."""
+        for servo in servos:
+            joint = servo.joint.secondary_of
+            first = self._roster.by_name.get(joint) if joint else None
+            if first is None or servo.mode not in modes.POSITION_MODES:
+                continue
+            present = self._link.read(first, 'present_position')
+            goal = clamp_position(servo, servo.units.position_from_rad(first.position_rad(present))
+                                  - servo.turn_offset)
+            self._link.write(servo, 'goal_position', goal)
+            servo.goal_raw['goal_position'] = goal
 
     @_answers
     def set_operating_mode(self, names: Sequence[str], mode: str) -> Result:
@@ -145,6 +160,8 @@ class Services:
                     raise BadRequest(f'joint {servo.name!r} is a {servo.model.name}, which has '
                                      f'no {mode} mode (its modes: '
                                      f'{", ".join(servo.model.modes)})')
+                # Limits the new mode cannot hold refuse the switch before anything changes.
+                position_limit_registers(servo, mode)
             done: List[str] = []
 
             def action() -> Result:

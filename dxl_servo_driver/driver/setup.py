@@ -296,6 +296,12 @@ class Setup:
             if name in modes.RESET_BY_MODE_CHANGE:
                 link.write_verified(servo, name, value)
                 yield
+        # The joint's own limits, now that the mode uses them (EEPROM: torque is off here).
+        for name, value in position_limit_registers(servo, mode).items():
+            if link.read(servo, name) != value:
+                link.write_verified(servo, name, value)
+            servo.limits[name] = value
+            yield
         yield from self.hold(servo)
 
     def _single_turn_homing(self, servo: Servo) -> Steps:
@@ -339,7 +345,7 @@ def _cbp_current(servo: Servo) -> int:
     return max(-limit, min(limit, wanted))
 
 
-def position_limit_registers(servo: Servo) -> Dict[str, int]:
+def position_limit_registers(servo: Servo, mode: str = '') -> Dict[str, int]:
     """
     Return the Min/Max Position Limit a joint's min_position/max_position give its servo.
 
@@ -348,7 +354,7 @@ def position_limit_registers(servo: Servo) -> Dict[str, int]:
     end is beyond what the mode can reach.
     """
     joint = servo.joint
-    if servo.mode not in modes.SINGLE_TURN:
+    if (mode or servo.mode) not in modes.SINGLE_TURN:
         return {}
     if joint.min_position is None and joint.max_position is None:
         return {}
@@ -364,6 +370,7 @@ def position_limit_registers(servo: Servo) -> Dict[str, int]:
         if not item.minimum <= raw <= item.maximum:
             raise ManagerError(
                 f'joint {joint.name!r}: {key} {value:g} is servo position {raw}, beyond the '
-                f'{item.minimum}..{item.maximum} of {register} ({servo.mode} mode turns once)')
+                f'{item.minimum}..{item.maximum} of {register} ({mode or servo.mode} mode turns '
+                'once)')
         ends[register] = raw
     return ends
