@@ -201,13 +201,14 @@ def test_joint_command_effort_goes_through_ratio_and_reverse(h: NodeHarness) -> 
     want = XM430.current_from_a(-0.2 * 0.5 / kt)
     h.wait_reg(IDS['hand'], 'goal_current',
                lambda raw: (raw - 2 ** 16 if raw >= 2 ** 15 else raw) == want)
-    # And joint_states' effort is the servo's torque brought back through the frame.
-    msg = h.joint_states.wait(lambda m: 'hand' in m.name)
-    i = list(msg.name).index('hand')
-    current = h.reg(IDS['hand'], 'present_current')
-    current = current - 2 ** 16 if current >= 2 ** 15 else current
-    expected = XM430.current_to_a(current) * kt / (-0.5)
-    assert msg.effort[i] == pytest.approx(expected, abs=0.05)
+    # And joint_states' effort is the servo's torque brought back through the frame: once the
+    # servo's current has reached its goal, the 0.2 N*m that was asked (a sign or a ratio the
+    # wrong way round would give -0.2, 0.05 or 0.8).
+    h.wait_reg(IDS['hand'], 'present_current',
+               lambda raw: abs((raw - 2 ** 16 if raw >= 2 ** 15 else raw) - want) <= 2)
+    h.joint_states.wait(
+        lambda m: 'hand' in m.name and abs(m.effort[list(m.name).index('hand')] - 0.2) < 0.03,
+        timeout_s=5.0)
     pub.publish(JointState(name=['hand'], effort=[0.0]))
 
 
