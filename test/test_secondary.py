@@ -107,8 +107,9 @@ def test_servos_that_fight_are_both_switched_off(h: NodeHarness) -> None:
     h.sim.set_load(SECOND, 6.0)   # the second side held: beyond the XM430's stall torque
     try:
         h.publish('position', ['lift'], [here + 0.6])
+        # Both switched off (one write each, the second a transaction after the first).
         h.wait_reg(FIRST, 'torque_enable', lambda value: value == 0, timeout_s=3.0)
-        assert h.reg(SECOND, 'torque_enable') == 0
+        h.wait_reg(SECOND, 'torque_enable', lambda value: value == 0, timeout_s=1.0)
         # Stopped by 0.2 (twice the tolerance) plus what one cycle moves, not at the goal.
         assert abs(rad(h, FIRST) + rad(h, SECOND)) < 0.35
         status = lift_status(h, lambda s: s.level == DiagnosticStatus.ERROR)
