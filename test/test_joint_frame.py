@@ -19,7 +19,8 @@ from node_harness import NodeHarness, sim_params
 import pytest
 from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from test_arm import trajectory
+from trajectory_msgs.msg import JointTrajectoryPoint
 
 XM430 = units_for(model_for(1030))
 FRAMES: Dict[str, Dict[str, Any]] = {
@@ -132,18 +133,11 @@ def test_the_limits_are_the_servos_position_limits(h: NodeHarness) -> None:
 
 def test_a_trajectory_runs_in_joint_units(h: NodeHarness) -> None:
     assert h.node is not None
-    msg = JointTrajectory()
-    msg.joint_names = ['elbow']
-    point = JointTrajectoryPoint()
-    point.positions = [-0.5]
-    point.time_from_start.sec = 1
-    msg.points.append(point)
-    assert h.node.arm.submit_trajectory(msg).success
+    assert h.node.arm.submit_trajectory(trajectory(['elbow'], [(1.0, [-0.5], [])])).success
     h.wait_reg(IDS['elbow'], 'present_position',
                lambda raw: abs(XM430.position_to_rad(raw) - servo_of('elbow', -0.5)) < 0.03)
     # Beyond the joint's own limits: refused whole.
-    point.positions = [-1.1]
-    reply = h.node.arm.submit_trajectory(msg)
+    reply = h.node.arm.submit_trajectory(trajectory(['elbow'], [(1.0, [-1.1], [])]))
     assert not reply.success and 'beyond its limits -1..1.19' in reply.message, reply
 
 
@@ -155,11 +149,15 @@ def wait_for(future: Any, timeout_s: float = 15.0) -> Any:
     return future.result()
 
 
-def test_follow_joint_trajectory_speaks_joint_units(h: NodeHarness) -> None:
+def action_client(h: NodeHarness, kind: Any, action: str) -> ActionClient:
     assert h.client is not None
-    client = ActionClient(h.client.node, FollowJointTrajectory,
-                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory')
-    assert client.wait_for_server(timeout_sec=10.0)
+    client = ActionClient(h.client.node, kind, f'{h.namespace}/dxl_servo_driver/{action}')
+    assert client.wait_for_server(timeout_sec=10.0), f'no {action} server'
+    return client
+
+
+def test_follow_joint_trajectory_speaks_joint_units(h: NodeHarness) -> None:
+    client = action_client(h, FollowJointTrajectory, 'follow_joint_trajectory')
     goal = FollowJointTrajectory.Goal()
     goal.trajectory.joint_names = ['elbow', 'wrist']
     point = JointTrajectoryPoint()
@@ -213,10 +211,7 @@ def test_joint_command_effort_goes_through_ratio_and_reverse(h: NodeHarness) -> 
 
 
 def test_a_linear_gripper_takes_metres_and_newtons(h: NodeHarness) -> None:
-    assert h.client is not None
-    client = ActionClient(h.client.node, GripperCommand,
-                          f'{h.namespace}/dxl_servo_driver/gripper_cmd')
-    assert client.wait_for_server(timeout_sec=10.0)
+    client = action_client(h, GripperCommand, 'gripper_cmd')
     goal = GripperCommand.Goal()
     goal.command.position = 0.008   # m: the servo turns 0.8 rad
     response = wait_for(wait_for(client.send_goal_async(goal)).get_result_async())

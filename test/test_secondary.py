@@ -15,7 +15,7 @@ from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from test_arm import trajectory
 
 XM430 = units_for(model_for(1030))
 JOINTS = {
@@ -56,13 +56,7 @@ def test_every_goal_reaches_the_mirrored_second_servo(h: NodeHarness) -> None:
 
 def test_a_trajectory_moves_both_servos_together(h: NodeHarness) -> None:
     assert h.node is not None
-    msg = JointTrajectory()
-    msg.joint_names = ['lift']
-    point = JointTrajectoryPoint()
-    point.positions = [-0.4]
-    point.time_from_start.sec = 1
-    msg.points.append(point)
-    assert h.node.arm.submit_trajectory(msg).success
+    assert h.node.arm.submit_trajectory(trajectory(['lift'], [(1.0, [-0.4], [])])).success
     gaps = []
     deadline = time.monotonic() + 1.5
     while time.monotonic() < deadline:
