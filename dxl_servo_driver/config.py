@@ -513,7 +513,8 @@ def _check_registers(joint: JointConfig, table: models.Model, lenient: bool = Fa
     # The lower bound of a crossed pair is named (min_position_limit, not max_...).
     for register in sorted(checked, key=lambda r: r.startswith('max_')):
         try:
-            registers.check_register_set(values, register, checked[register], joint.operating_mode)
+            registers.check_register_set(table, values, register, checked[register],
+                                         joint.operating_mode)
         except ValueError as exc:
             raise ConfigError(f'{joint.name}.registers.{register}', str(exc)) from None
 

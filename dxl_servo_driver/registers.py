@@ -9,7 +9,7 @@ must stay ordered, the homing offset position mode ignores). Pure: no I/O.
 
 from typing import Mapping
 
-from dxl_servo_driver.models import Item, Model, modes, xm430
+from dxl_servo_driver.models import Item, Model, modes
 
 # Registers the driver manages itself; a configuration may not set them.
 DRIVER_OWNED = frozenset(
@@ -73,13 +73,15 @@ def related_registers(model: Model, name: str) -> tuple[str, ...]:
     return tuple(related)
 
 
-def check_register_set(values: Mapping[str, int], name: str, value: int, mode: str) -> None:
+def check_register_set(model: Model, values: Mapping[str, int], name: str, value: int,
+                       mode: str) -> None:
     """
     Raise ValueError when setting name to value contradicts the servo's other registers.
 
     values holds the current values of (at least) related_registers(name); mode is the joint's
-    operating mode. The one rule book for parameter files and write_register. A bound the
-    model does not have (no acceleration_limit outside the XM430 manual's models) is not checked.
+    operating mode; model the servo's (its homing rule). The one rule book for parameter files
+    and write_register. A bound the model does not have (no acceleration_limit outside the
+    XM430 manual's models) is not checked.
     """
     bound = _BOUNDED_BY.get(name)
     if bound is not None and bound in values and abs(value) > values[bound]:
@@ -91,10 +93,11 @@ def check_register_set(values: Mapping[str, int], name: str, value: int, mode: s
             raise ValueError(f'{low} {value} is above {high} ({values[high]})')
         if name == high and value < values[low]:
             raise ValueError(f'{high} {value} is below {low} ({values[low]})')
-    if (name == 'homing_offset' and mode in modes.SINGLE_TURN
-            and abs(value) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT):
-        raise ValueError('position mode ignores a homing offset beyond +-1024 (the manual); '
-                         'use extended_position for larger offsets')
+    ignored = model.homing_position_mode_limit
+    if (name == 'homing_offset' and mode in modes.SINGLE_TURN and ignored is not None
+            and abs(value) > ignored):
+        raise ValueError(f'position mode ignores a homing offset beyond +-{ignored} (the '
+                         f'{model.name} manual); use extended_position for larger offsets')
 
 
 def check_range(item: Item, value: int) -> None:

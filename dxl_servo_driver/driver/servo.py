@@ -106,7 +106,7 @@ class Servo:
         """Return the Goal Position values taken now: its limits (position mode), else all."""
         if self.mode in modes.SINGLE_TURN and self.limits:
             return self.limits['min_position_limit'], self.limits['max_position_limit']
-        return -xm430.EXTENDED_POSITION_LIMIT, xm430.EXTENDED_POSITION_LIMIT
+        return -self.model.extended_position_limit, self.model.extended_position_limit
 
     def joint_position_range(self) -> Tuple[float, float]:
         """Return the lowest and highest position the joint may be sent to (joint units)."""

@@ -18,7 +18,7 @@ from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Servo
 from dxl_servo_driver.errors import (
     CommError, CommTimeout, ConfigurationError, CorruptReply, PortError, StatusError)
-from dxl_servo_driver.models import modes, xm430
+from dxl_servo_driver.models import modes
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.tasks import Steps
 
@@ -309,7 +309,8 @@ class Setup:
         # from another mode is put back to the configured one.
         offset = self._link.read(servo, 'homing_offset')
         yield
-        if abs(offset) > xm430.HOMING_OFFSET_POSITION_MODE_LIMIT:
+        ignored = servo.model.homing_position_mode_limit
+        if ignored is not None and abs(offset) > ignored:
             self._link.write_verified(servo, 'homing_offset',
                                       servo.joint.register_dict().get('homing_offset', 0))
             yield

@@ -112,6 +112,10 @@ class Model:
     physics: Physics
     min_firmware: int = 0
     fast_sync_read_firmware: int | None = None
+    # Goal Position's range in the multi-turn modes (the XM430 manual: +-256 turns).
+    extended_position_limit: int = 1_048_575
+    # Position mode ignores a Homing Offset beyond this (the XM430 manual); None: no such rule.
+    homing_position_mode_limit: int | None = 1024
     _by_name: dict[str, Item] = field(
         init=False, repr=False, compare=False, hash=False, default_factory=dict)
     _by_address: dict[int, Item] = field(
@@ -161,6 +165,12 @@ class Model:
         if isinstance(key, str):
             return self.item(key)
         return self.by_address(key)
+
+    @property
+    def ram_start(self) -> int:
+        """Return the first RAM address (EEPROM lies below it, locked while torque is on)."""
+        return min((item.address for item in self.items if item.area == 'ram'),
+                   default=self.table_end)
 
     @property
     def table_end(self) -> int:

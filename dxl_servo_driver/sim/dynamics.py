@@ -58,8 +58,7 @@ import struct
 from typing import Optional, Protocol
 
 from dxl_servo_driver.models import Model, modes
-from dxl_servo_driver.models.xm430 import (
-    HOMING_OFFSET_POSITION_MODE_LIMIT, INT32_MAX, INT32_MIN)
+from dxl_servo_driver.models.xm430 import INT32_MAX, INT32_MIN
 from dxl_servo_driver.sim import motor
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, table_for
 from dxl_servo_driver.sim.velocity_profile import (
@@ -134,11 +133,11 @@ def _present_block(model: Model, names: tuple[str, ...]) -> tuple[struct.Struct,
     return struct.Struct(layout), items[0].address
 
 
-def _homing_offset(regs: 'RegisterStore') -> int:
-    """Return the homing offset in effect: position mode ignores one beyond +-1024 (the manual)."""
+def _homing_offset(regs: 'RegisterStore', ignored: int | None) -> int:
+    """Return the homing offset in effect: position mode ignores one beyond `ignored`."""
     offset = regs.get('homing_offset')
-    if regs.get('operating_mode') == MODE_POSITION and \
-            abs(offset) > HOMING_OFFSET_POSITION_MODE_LIMIT:
+    if ignored is not None and regs.get('operating_mode') == MODE_POSITION and \
+            abs(offset) > ignored:
         return 0
     return offset
 
@@ -183,6 +182,7 @@ class ServoDynamics:
         self.model = model
         self.motor = motor.motor_for(model)
         self._pulses_per_rev = model.pulses_per_rev
+        self._homing_ignored = model.homing_position_mode_limit
         self._pulse_per_rad = model.pulses_per_rev / (2.0 * math.pi)
         self._velocity_unit_per_rad_s = motor.rad_s_to_rpm(1.0) / model.velocity_unit_rpm
         # beta: pulse/s per velocity unit, used by the velocity loop.
@@ -272,7 +272,8 @@ class ServoDynamics:
             low = regs.get('min_position_limit')
             high = regs.get('max_position_limit')
             goal = min(max(goal, low), high) if low <= high else goal
-        goal_pulse = float(goal - self._turn_offset_pulse - _homing_offset(regs))
+        homing = _homing_offset(regs, self._homing_ignored)
+        goal_pulse = float(goal - self._turn_offset_pulse - homing)
         profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
                                 regs.get('profile_velocity'), regs.get('profile_acceleration'))
         self._profile = profile
@@ -293,7 +294,8 @@ class ServoDynamics:
         """Present position := horn position within one turn + homing offset."""
         turns = math.floor(self.horn_position_pulse / self._pulses_per_rev)
         self._turn_offset_pulse = -self._pulses_per_rev * turns
-        regs.set('present_position', self._present_position_raw(_homing_offset(regs)))
+        homing = _homing_offset(regs, self._homing_ignored)
+        regs.set('present_position', self._present_position_raw(homing))
 
     # ----------------------------------------------------------------- simulation
     def _sync_mode_and_torque(self, regs: RegisterStore) -> None:
@@ -559,7 +561,7 @@ class ServoDynamics:
                  overloaded_span: bool) -> int:
         """Write the present registers; return the detected error bits."""
         get = regs.get
-        homing = _homing_offset(regs)
+        homing = _homing_offset(regs, self._homing_ignored)
         offset = self._turn_offset_pulse + homing
         velocity_raw = _clamp_int(self._omega_rad_s * self._velocity_unit_per_rad_s,
                                   INT32_MIN, INT32_MAX)

@@ -18,10 +18,7 @@ import struct
 from typing import Callable
 
 from dxl_servo_driver.models import Item, Model, model_for, ModelError
-from dxl_servo_driver.models.layout import EEPROM_END
-from dxl_servo_driver.models.xm430 import (
-    EXTENDED_POSITION_LIMIT, HOMING_OFFSET_POSITION_MODE_LIMIT, MODEL_NUMBER, MODEL_NUMBERS,
-    TABLE_SIZE)
+from dxl_servo_driver.models.xm430 import MODEL_NUMBER, MODEL_NUMBERS, TABLE_SIZE
 from dxl_servo_driver.protocol import ErrorCode
 
 _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
@@ -78,6 +75,7 @@ class Table:
             model.modes[name] for name in ('extended_position', 'current_based_position')
             if name in model.modes)
         self.eeprom = tuple(item for item in model.items if item.area == 'eeprom')
+        self.ram_start = model.ram_start
         self.ram_initial = tuple((item.name, item.initial) for item in model.items
                                  if item.area == 'ram' and item.initial)
         self.goals_from_limits = tuple(
@@ -221,7 +219,7 @@ class Memory:
     def reset_ram(self) -> None:
         """Return every RAM item to its power-on value (reboot, power cycle)."""
         table = self.table
-        self._data[EEPROM_END:] = bytes(table.size - EEPROM_END)
+        self._data[table.ram_start:] = bytes(table.size - table.ram_start)
         for name, initial in table.ram_initial:
             self.set(name, initial)
         # Goal PWM / Goal Current power on at the (EEPROM) limits.
@@ -338,9 +336,11 @@ class Memory:
             if item.limit is not None:
                 self._check_limit(new, item, structs[name].unpack_from(new, item.address)[0])
         homing = table.homing
-        if homing.name in items and self._value(new, 'operating_mode') == table.position_mode:
+        ignored = self.model.homing_position_mode_limit
+        if (homing.name in items and ignored is not None
+                and self._value(new, 'operating_mode') == table.position_mode):
             offset = self._value(new, homing.name)
-            if abs(offset) > HOMING_OFFSET_POSITION_MODE_LIMIT:
+            if abs(offset) > ignored:
                 # Manual: in position mode an invalid homing offset is ignored (not an error).
                 stop = homing.address + homing.size
                 new[homing.address:stop] = data[homing.address:stop]
@@ -368,7 +368,8 @@ class Memory:
                 low = self._value(new, 'min_position_limit')
                 high = self._value(new, 'max_position_limit')
             elif mode in table.multi_turn_modes:
-                low, high = -EXTENDED_POSITION_LIMIT, EXTENDED_POSITION_LIMIT
+                low = -self.model.extended_position_limit
+                high = self.model.extended_position_limit
             else:
                 return
         else:
