@@ -112,6 +112,8 @@ class Model:
     physics: Physics
     min_firmware: int = 0
     fast_sync_read_firmware: int | None = None
+    # One Profile Acceleration unit (the XM430 manual: 214.577 rev/min^2).
+    acceleration_unit_rpm2: float = 214.577
     # Goal Position's range in the multi-turn modes (the XM430 manual: +-256 turns).
     extended_position_limit: int = 1_048_575
     # Position mode ignores a Homing Offset beyond this (the XM430 manual); None: no such rule.

@@ -62,8 +62,8 @@ from dxl_servo_driver.models.xm430 import INT32_MAX, INT32_MIN
 from dxl_servo_driver.sim import motor
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, table_for
 from dxl_servo_driver.sim.velocity_profile import (
-    ACCELERATION_UNIT_PULSE_MS2, plan_position, PositionProfile, PROFILE_STEP,
-    PROFILE_TRAPEZOIDAL, ramp_velocity, VELOCITY_UNIT_PULSE_MS)
+    plan_position, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ProfileUnits,
+    ramp_velocity, X_UNITS)
 
 CONTROL_PERIOD_S = 0.001
 FOLLOWING_ERROR_PULSE = 256
@@ -83,9 +83,20 @@ MOVING_STATUS_FOLLOWING_ERROR = 0x08
 MOVING_STATUS_PROFILE_ONGOING = 0x02
 MOVING_STATUS_IN_POSITION = 0x01
 
-# The profile's units (velocity_profile.py) per pulse/ms and pulse/ms^2: 64 and 4096.
-_VELOCITY_RAW_PER_PULSE_MS = 1.0 / VELOCITY_UNIT_PULSE_MS
-_ACCELERATION_RAW_PER_PULSE_MS2 = 1.0 / ACCELERATION_UNIT_PULSE_MS2
+
+def profile_units(model: Model) -> ProfileUnits:
+    """
+    Return a model's profile units in pulses and ms.
+
+    The X series' are the XM430 manual's rounding (1/64 pulse/ms, 1/4096 pulse/ms^2: its travel
+    time formulas use them); any other family's come from its own units, unrounded.
+    """
+    if (model.velocity_unit_rpm, model.pulses_per_rev, model.acceleration_unit_rpm2) == (
+            0.229, 4096, 214.577):
+        return X_UNITS
+    per_rev = float(model.pulses_per_rev)
+    return ProfileUnits(model.velocity_unit_rpm * per_rev / 60_000.0,
+                        model.acceleration_unit_rpm2 * per_rev / 3.6e9)
 
 
 class RegisterStore(Protocol):
@@ -183,6 +194,8 @@ class ServoDynamics:
         self.motor = motor.motor_for(model)
         self._pulses_per_rev = model.pulses_per_rev
         self._homing_ignored = model.homing_position_mode_limit
+        self._profile_units = profile_units(model)
+        self._velocity_raw_per_pulse_ms = 1.0 / self._profile_units.velocity_pulse_ms
         self._pulse_per_rad = model.pulses_per_rev / (2.0 * math.pi)
         self._velocity_unit_per_rad_s = motor.rad_s_to_rpm(1.0) / model.velocity_unit_rpm
         # beta: pulse/s per velocity unit, used by the velocity loop.
@@ -275,7 +288,8 @@ class ServoDynamics:
         homing = _homing_offset(regs, self._homing_ignored)
         goal_pulse = float(goal - self._turn_offset_pulse - homing)
         profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
-                                regs.get('profile_velocity'), regs.get('profile_acceleration'))
+                                regs.get('profile_velocity'), regs.get('profile_acceleration'),
+                                self._profile_units)
         self._profile = profile
         self._profile_t_ms = 0.0
         self._profile_kind = profile.kind
@@ -359,8 +373,8 @@ class ServoDynamics:
         pulse_per_rad_dt = self._pulse_per_rad * dt
         pulse_per_rad_ms = self._pulse_per_rad / 1000.0
         unit_per_rad_s = self._velocity_unit_per_rad_s
-        velocity_raw_per_pulse_ms = _VELOCITY_RAW_PER_PULSE_MS
-        acceleration_raw_per_pulse_ms2 = _ACCELERATION_RAW_PER_PULSE_MS2
+        velocity_raw_per_pulse_ms = self._velocity_raw_per_pulse_ms
+        acceleration_raw_per_pulse_ms2 = 1.0 / self._profile_units.acceleration_pulse_ms2
         full = float(self._pwm_full_raw)
         volts_eff = volts if volts > 1e-6 else 1e-6
         overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
@@ -456,7 +470,8 @@ class ServoDynamics:
                 duty = max(-out_limit, min(out_limit, demand)) / full
             elif mode == MODE_VELOCITY:
                 if vel_traj != goal_velocity:
-                    vel_traj = ramp_velocity(vel_traj, goal_velocity, acceleration_raw, dt_ms)
+                    vel_traj = ramp_velocity(vel_traj, goal_velocity, acceleration_raw, dt_ms,
+                                             self._profile_units)
                     integral_moved = True
                 error = vel_traj - omega * unit_per_rad_s
                 demand = kvp * error + kvi * vel_integral
@@ -580,7 +595,7 @@ class ServoDynamics:
         position_trajectory = get('position_trajectory')
         if position_mode:
             velocity_trajectory = _clamp_int(
-                self._traj_vel_pulse_ms * _VELOCITY_RAW_PER_PULSE_MS, INT32_MIN, INT32_MAX)
+                self._traj_vel_pulse_ms * self._velocity_raw_per_pulse_ms, INT32_MIN, INT32_MAX)
             position_trajectory = _clamp_int(self._traj_pulse + offset, INT32_MIN, INT32_MAX)
             if torque_on:
                 status = self._profile_kind

@@ -18,6 +18,9 @@ t3 = t1 + t2 with t2 = 64 * dPos / V ms.
 
 Jerk smoothing is not modelled (the manual says the real travel time may be longer than t3); the
 simulated trajectory ends exactly at t3.
+
+Other families count profiles in other units (the P series: 0.01 rpm and 1 rev/min^2): plan
+and ramp take a ProfileUnits, the X series' (the manual's rounding above) unless told.
 """
 
 from dataclasses import dataclass
@@ -32,6 +35,22 @@ PROFILE_TRAPEZOIDAL = 0x30
 
 VELOCITY_UNIT_PULSE_MS = 1.0 / 64.0       # one profile velocity unit in pulse/ms
 ACCELERATION_UNIT_PULSE_MS2 = 1.0 / 4096.0  # one profile acceleration unit in pulse/ms^2
+
+
+@dataclass(frozen=True)
+class ProfileUnits:
+    """One profile velocity unit in pulse/ms and one acceleration unit in pulse/ms^2."""
+
+    velocity_pulse_ms: float = VELOCITY_UNIT_PULSE_MS
+    acceleration_pulse_ms2: float = ACCELERATION_UNIT_PULSE_MS2
+
+    @property
+    def velocity_units_per_ms(self) -> float:
+        """Return the velocity units one acceleration unit adds per ms (1/64 on the X)."""
+        return self.acceleration_pulse_ms2 / self.velocity_pulse_ms
+
+
+X_UNITS = ProfileUnits()
 
 
 @dataclass(frozen=True)
@@ -102,7 +121,8 @@ def travel_time_ms(profile_velocity_raw: int, profile_acceleration_raw: int,
 
 
 def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse: float,
-                  profile_velocity_raw: int, profile_acceleration_raw: int) -> PositionProfile:
+                  profile_velocity_raw: int, profile_acceleration_raw: int,
+                  units: ProfileUnits = X_UNITS) -> PositionProfile:
     """
     Plan a move from (start, start velocity) to rest at goal.
 
@@ -112,7 +132,7 @@ def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse
     """
     if profile_velocity_raw <= 0:
         return PositionProfile(PROFILE_STEP, start_pulse, goal_pulse, [])
-    vmax = profile_velocity_raw * VELOCITY_UNIT_PULSE_MS
+    vmax = profile_velocity_raw * units.velocity_pulse_ms
     segments: list[Segment] = []
     if profile_acceleration_raw <= 0:
         # Infinite acceleration: the velocity jumps to V and back to 0.
@@ -123,7 +143,7 @@ def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse
                                     abs(distance) / vmax))
         return PositionProfile(PROFILE_RECTANGULAR, start_pulse, goal_pulse, segments)
 
-    acc = profile_acceleration_raw * ACCELERATION_UNIT_PULSE_MS2
+    acc = profile_acceleration_raw * units.acceleration_pulse_ms2
     t_ms = 0.0
     pos = start_pulse
     vel = start_velocity_pulse_ms
@@ -176,7 +196,7 @@ def plan_position(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse
 
 
 def ramp_velocity(velocity_raw: float, target_raw: float, acceleration_raw: int,
-                  dt_ms: float) -> float:
+                  dt_ms: float, units: ProfileUnits = X_UNITS) -> float:
     """
     Velocity-mode profile: move velocity_raw towards target_raw for dt_ms.
 
@@ -185,7 +205,7 @@ def ramp_velocity(velocity_raw: float, target_raw: float, acceleration_raw: int,
     """
     if acceleration_raw <= 0:
         return target_raw
-    step = acceleration_raw * dt_ms / 64.0
+    step = acceleration_raw * dt_ms * units.velocity_units_per_ms
     if velocity_raw < target_raw:
         return min(target_raw, velocity_raw + step)
     return max(target_raw, velocity_raw - step)
