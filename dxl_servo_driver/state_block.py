@@ -112,41 +112,71 @@ BLOCK_SHAPE = BlockShape()
 
 class StateBlock(BlockShape):
     """
-    Where one model's state block lives: its indirect entries and the registers behind.
+    Where one model's state block lives, and how its bytes become the shape's values.
 
-    A table with fewer indirect entries than the block has bytes (the X330 before firmware
-    53: 20) leaves Present PWM out (`compact`); its values are still decoded to the shape's
-    positions, with 0 where PWM would be, and `has_pwm` says not to believe that 0.
+    Behind each field is the model's register for it (`Model.state_registers` renames: a
+    family whose manual calls Present Velocity "Present Speed"); a field whose model has no
+    such register is left out and decodes as 0, and `has(field)` says not to believe that 0.
+
+    Two layouts. Indirect (every X, MX(2.0), P and PRO(A) table): the fields packed into the
+    first indirect data bytes, one read per cycle of the motion part and the tick (tagged) or
+    of the whole block. A table with fewer indirect entries than the block has bytes (the X330
+    before firmware 53: 20) leaves Present PWM out (`compact`). Direct (a table without enough
+    indirect entries: the XL-320): the model's own registers, one read of the span from the
+    first to the last of them, whatever the part asked; no canary and, where the table has
+    none, no Realtime Tick (`has_tick`), so such samples are dated by the bus alone.
     """
 
-    # What a table too small for the whole block leaves out.
+    # What an indirect table too small for the whole block leaves out.
     COMPACT_DROPS = ('present_pwm',)
+    _CODES = {(1, False): 'B', (1, True): 'b', (2, False): 'H', (2, True): 'h',
+              (4, False): 'I', (4, True): 'i'}
 
     def __init__(self, model: Model, effort_register: str) -> None:
         super().__init__()
         self.model = model
         self.effort_register = effort_register
-        self.compact = len(model.indirect) < self.size
-        if self.compact:
-            kept = tuple(pair for pair in self.FIELDS if pair[0] not in self.COMPACT_DROPS)
-            self._dropped = tuple(self.index[name] for name in self.COMPACT_DROPS)
-            self.struct = struct.Struct('<' + ''.join(code for _, code in kept))
-            self.size = self.struct.size
-            names: tuple[str, ...] = tuple(name for name, _ in kept)
+        renamed = model.state_registers
+        registers = {name: (effort_register if name == 'effort' else renamed.get(name, name))
+                     for name in self.names}
+        present = tuple(name for name in self.names if model.has(registers[name]))
+        self._registers = {name: registers[name] for name in present}
+        block_bytes = sum(model.item(self._registers[name]).size for name in present)
+        # Indirect when the table has entries enough (the compact X330 drops PWM to fit).
+        fits = [name for name in present if name not in self.COMPACT_DROPS]
+        fits_bytes = sum(model.item(self._registers[name]).size for name in fits)
+        self.direct = len(model.indirect) < fits_bytes
+        self.compact = not self.direct and len(model.indirect) < block_bytes
+        kept = fits if self.compact else list(present)
+        self.present = frozenset(kept)
+        self.has_pwm = 'present_pwm' in self.present
+        self.has_tick = 'realtime_tick' in self.present
+        self.has_canary = not self.direct
+        self._positions = tuple(self.index[name] for name in kept)
+        # Present Speed / Present Load of the older tables: bit 10 the direction, not a sign.
+        self._direction_bits = tuple(
+            (self.index[name], model.direction_bits[self._registers[name]])
+            for name in kept if self._registers[name] in model.direction_bits)
+        if self.direct:
+            self._layout_direct(model, kept)
         else:
-            names = self.names
-        self.has_pwm = not self.compact
+            self._layout_indirect(model, kept)
+        # The X layout: the struct's values are the shape's, in order, nothing to move.
+        self._as_shape = (self._positions == tuple(range(len(self.names)))
+                          and not self._direction_bits)
+
+    def _layout_indirect(self, model: Model, kept: list[str]) -> None:
         fields = []
         offset = 0
-        for name in names:
-            item = model.item(self.register(name))
+        codes = ''
+        for name in kept:
+            item = model.item(self._registers[name])
             fields.append(BlockField(item.name, offset, item.size))
+            codes += self._CODES[item.size, item.signed]
             offset += item.size
         self.fields: tuple[BlockField, ...] = tuple(fields)
-        assert offset == self.size, 'struct codes disagree with the control table sizes'
-        if len(model.indirect) < self.size:
-            raise ValueError(f'{model.label} has {len(model.indirect)} indirect entries, '
-                             f'the state block needs {self.size}')
+        self.struct = struct.Struct('<' + codes)
+        self.size = offset
         self.read_address: int = model.indirect[0][1]
         self.map_address: int = model.indirect[0][0]
         # The block's data bytes must be consecutive (one read): true of every bank's start.
@@ -154,20 +184,86 @@ class StateBlock(BlockShape):
         if data != list(range(data[0], data[0] + self.size)):
             raise ValueError(f'{model.label}: the first {self.size} indirect data bytes are '
                              'not consecutive')
+        # The cycle reads the motion part (and the tick) alone; they lead the block.
+        motion = [name for name in self.names[:self.TAGGED_FIELDS] if name in self.present]
+        self.motion_size = sum(f.size for f in fields[:min(len(motion), self.MOTION_FIELDS)])
+        self.tagged_size = sum(f.size for f in fields[:len(motion)])
+        self.motion_struct = struct.Struct('<' + codes[:min(len(motion), self.MOTION_FIELDS)])
+        self.tagged_struct = struct.Struct('<' + codes[:len(motion)])
+
+    def _layout_direct(self, model: Model, kept: list[str]) -> None:
+        items = sorted((model.item(self._registers[name]), name) for name in kept)
+        start = items[0][0].address
+        codes = ''
+        fields = []
+        order = []
+        position = start
+        for item, name in items:
+            if item.address < position:
+                raise ValueError(f'{model.label}: {item.name} overlaps another state register')
+            codes += 'x' * (item.address - position) + self._CODES[item.size, item.signed]
+            fields.append(BlockField(item.name, item.address - start, item.size))
+            order.append(self.index[name])
+            position = item.address + item.size
+        self.fields = tuple(fields)
+        self.struct = struct.Struct('<' + codes)
+        self.size = position - start
+        self.read_address = start
+        self.map_address = -1
+        self._positions = tuple(order)
+        # One span, read whole whatever part the cycle asks for.
+        self.motion_size = self.tagged_size = self.size
+        self.motion_struct = self.tagged_struct = self.struct
+
+    def has(self, field_name: str) -> bool:
+        """Return whether the model has the register behind this field (else it reads 0)."""
+        return field_name in self.present
+
+    def _spread(self, values: tuple[int, ...]) -> tuple[int, ...]:
+        """Return values decoded in layout order at their positions in FIELDS (0 elsewhere)."""
+        whole = [0] * len(self.names)
+        for index, value in zip(self._positions, values):
+            whole[index] = value
+        for index, bit in self._direction_bits:
+            raw = whole[index]
+            whole[index] = -(raw & (bit - 1)) if raw & bit else raw & (bit - 1)
+        return tuple(whole)
 
     def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
         """Return the block's raw values, in the positions of FIELDS (0 for left-out ones)."""
         values = self.struct.unpack_from(data, offset)
-        if not self.compact:
-            return values
-        whole = list(values)
-        for index in self._dropped:
-            whole.insert(index, 0)
-        return tuple(whole)
+        return values if self._as_shape else self._spread(values)
+
+    def decode_motion(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
+        """Return the raw values of the motion part, at their FIELDS positions."""
+        if self.direct:
+            return self.decode(data, offset)[:self.MOTION_FIELDS]
+        return self.motion_struct.unpack_from(data, offset)
+
+    def decode_tagged(self, data: bytes, offset: int = 0) -> tuple[int, ...]:
+        """Return the raw values of the motion part and the tick, at their FIELDS positions."""
+        if self.direct:
+            return self.decode(data, offset)[:self.TAGGED_FIELDS]
+        values = self.tagged_struct.unpack_from(data, offset)
+        return values if self.has_tick else values + (0,)
+
+    def decoder(self, length: int) -> 'Callable[[bytes], tuple[int, ...]]':
+        """Return the decoder of a read of length bytes (motion, tagged or whole)."""
+        if length == self.size:
+            return self.decode
+        if length == self.tagged_size:
+            return self.decode_tagged
+        if length == self.motion_size:
+            return self.decode_motion
+        raise ValueError(f'no state block part is {length} bytes long')
+
+    def restarted(self, values: tuple[int, ...]) -> bool:
+        """Return True when the values show the indirect mapping was lost (servo restarted)."""
+        return self.has_canary and values[self.canary_index] == 0
 
     def register(self, field_name: str) -> str:
         """Return the register behind a block field (effort: current or load)."""
-        return self.effort_register if field_name == 'effort' else field_name
+        return self._registers.get(field_name, field_name)
 
     def indirect_map(self) -> list[int]:
         """Return the target address of each indirect byte, in order (one per block byte)."""
@@ -251,6 +347,8 @@ def goal_slot(model: Model, block: StateBlock, mode: str) -> Optional[GoalSlot]:
     The slot takes the GOAL_SLOT_SIZE indirect entries after the state block; the X330 before
     firmware 53 (20 entries, all taken by its compact block) has none.
     """
+    if block.direct:
+        return None
     first = block.size
     entries = model.indirect[first:first + GOAL_SLOT_SIZE]
     if len(entries) < GOAL_SLOT_SIZE or mode not in modes.BY_NAME:

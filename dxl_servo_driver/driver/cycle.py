@@ -22,7 +22,7 @@ from dxl_servo_driver.bus import SyncRead, SyncResult
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.goals import Goals, Pending
 from dxl_servo_driver.driver.servo import (
-    BLOCK, IDX_CANARY, IDX_HW_ERROR, IDX_TICK, Servo, Throttle)
+    BLOCK, IDX_HW_ERROR, IDX_TICK, Servo, Throttle)
 from dxl_servo_driver.errors import CommError, StatusError
 from dxl_servo_driver.protocol import READ_PACKET_SIZE, STATUS_OVERHEAD
 
@@ -117,6 +117,9 @@ class Cycle:
         self._last_full_s = -1e9
         self._need_full = True
         self._ids: List[Tuple[Servo, int]] = []
+        # Servos whose block is the X layout, read through indirect entries and tick-dated:
+        # the usual cycle decodes them with one struct, the rest go the careful way.
+        self._shaped: frozenset[int] = frozenset()
         self._reading: Optional[ReadInFlight] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
         self._groups: List[Tuple[state_block.StateBlock, List[int]]] = []
@@ -139,6 +142,10 @@ class Cycle:
         # in progress (being restored, rebooted, probed) is left out of the cycle's read.
         self._ids = [(servo, servo.servo_id) for servo in self._roster.active()
                      if servo.name not in self._tasks]
+        self._shaped = frozenset(
+            servo_id for servo, servo_id in self._ids
+            if not servo.block.direct and servo.block.has_tick
+            and servo.block.tagged_struct.format == _TAGGED.format)
         groups: Dict[Tuple[int, int], Tuple[state_block.StateBlock, List[int]]] = {}
         for servo, servo_id in self._ids:
             block = servo.block
@@ -255,10 +262,12 @@ class Cycle:
         check = self._stale.check
         tagged_size = BLOCK.tagged_size
         unpack_tagged = _TAGGED.unpack
+        shaped = self._shaped
         for servo, servo_id in self._ids:
             data = get(servo_id)
             state = servo.state
-            if isinstance(data, bytes) and len(data) == tagged_size and state is not None:
+            if isinstance(data, bytes) and len(data) == tagged_size and state is not None \
+                    and servo_id in shaped:
                 # The usual cycle: motion and tick of a servo known to be well, dated.
                 values = unpack_tagged(data)
                 if values[0] or values[1] or values[2]:   # all zeros: see below
@@ -282,7 +291,8 @@ class Cycle:
             block = servo.block
             values = block.decoder(size)(data)
             full = size == block.size
-            if not values[0] and not values[1] and not values[2] and not full:
+            if not values[0] and not values[1] and not values[2] and not full \
+                    and block.has_canary:
                 # What a restarted servo returns (its indirect map is gone) - or a horn at
                 # exactly -pi, at rest: ask for the whole block, canary included, to know.
                 checked = self._check_restart(servo)
@@ -290,13 +300,13 @@ class Cycle:
                     continue
                 values = checked
                 full = True
-            elif full and values[IDX_CANARY] == 0:
+            elif full and block.restarted(values):
                 servo.fresh = False
                 self.restarted.append(servo)
                 continue
             else:
                 when = dated.get(servo_id, (sent_s, received))
-                if not check(servo, values[IDX_TICK], when[0], when[1]):
+                if block.has_tick and not check(servo, values[IDX_TICK], when[0], when[1]):
                     continue
             if full:
                 servo.state = values
@@ -335,11 +345,12 @@ class Cycle:
             self._read_failed(servo, exc)
             return None
         values = servo.block.decode(data)
-        if values[IDX_CANARY] == 0:
+        if servo.block.restarted(values):
             servo.fresh = False
             self.restarted.append(servo)
             return None
-        if not self._stale.check(servo, values[IDX_TICK], sent_s, time.monotonic()):
+        if servo.block.has_tick and not self._stale.check(servo, values[IDX_TICK], sent_s,
+                                                          time.monotonic()):
             return None
         return values
 
@@ -442,4 +453,4 @@ class Cycle:
 
 def _group_length(block: state_block.StateBlock, length: int) -> int:
     """Return the read length of a block: a whole-block read is as long as that model's."""
-    return block.size if length >= BLOCK.size else length
+    return block.size if length >= BLOCK.size or block.direct else length

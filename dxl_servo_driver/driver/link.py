@@ -134,6 +134,8 @@ class Link:
         """Write the indirect map of the servo's state block (and goal slot, right after it)."""
         bus = self.io()
         block = servo.block
+        if block.direct:
+            return   # read at its own registers: nothing to map
         data = block.indirect_map_bytes()
         if slot is not None:
             if slot.map_address != block.indirect_map_address() + len(data):

@@ -13,7 +13,7 @@ from typing import List, Optional
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
-from dxl_servo_driver.driver.servo import IDX_CANARY, IDX_HW_ERROR, Servo, Throttle
+from dxl_servo_driver.driver.servo import IDX_HW_ERROR, Servo, Throttle
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.models import modes
@@ -116,7 +116,7 @@ class Recovery:
         values = self._link.read_block(servo)
         yield
         servo.status = ''
-        if values[IDX_CANARY] != 0:
+        if not servo.block.restarted(values):
             servo.tick.reset()
             return   # it kept its power and its setup: it holds what it held
         servo.restarts += 1

@@ -112,6 +112,10 @@ class Model:
     physics: Physics
     min_firmware: int = 0
     fast_sync_read_firmware: int | None = None
+    # Fields of the state block this table names otherwise (block field -> its register).
+    state_registers: dict[str, str] = field(default_factory=dict, hash=False)
+    # Registers whose sign is a direction bit (value & bit), not two's complement: bit.
+    direction_bits: dict[str, int] = field(default_factory=dict, hash=False)
     # One Profile Acceleration unit (the XM430 manual: 214.577 rev/min^2).
     acceleration_unit_rpm2: float = 214.577
     # Goal Position's range in the multi-turn modes (the XM430 manual: +-256 turns).
