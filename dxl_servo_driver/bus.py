@@ -531,11 +531,11 @@ class Bus:
     def read_item(self, servo_id: int, item: Item) -> int:
         """Return one control-table item's value."""
         data = self.read(servo_id, item.address, item.size)
-        return int.from_bytes(data, 'little', signed=item.signed)
+        return item.decode(data)
 
     def write_item(self, servo_id: int, item: Item, value: int) -> None:
         """Write one control-table item."""
-        self.write(servo_id, item.address, value.to_bytes(item.size, 'little', signed=item.signed))
+        self.write(servo_id, item.address, item.encode(value))
 
     def reboot(self, servo_id: int) -> None:
         """Send REBOOT and check the servo acknowledged it."""

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import struct
 from typing import Callable, Mapping, Optional
 
-from dxl_servo_driver.models import Model, modes
+from dxl_servo_driver.models import Item, Model, modes
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
 
@@ -114,9 +114,9 @@ class StateBlock(BlockShape):
     """
     Where one model's state block lives, and how its bytes become the shape's values.
 
-    Behind each field is the model's register for it (`Model.state_registers` renames: a
-    family whose manual calls Present Velocity "Present Speed"); a field whose model has no
-    such register is left out and decodes as 0, and `has(field)` says not to believe that 0.
+    Behind each field is the model's register for it (`Model.roles`: a family whose manual
+    calls Present Velocity "Present Speed"); a field whose model has no such register is left
+    out and decodes as 0, and `has(field)` says not to believe that 0.
 
     Two layouts. Indirect (every X, MX(2.0), P and PRO(A) table): the fields packed into the
     first indirect data bytes, one read per cycle of the motion part and the tick (tagged) or
@@ -136,11 +136,10 @@ class StateBlock(BlockShape):
         super().__init__()
         self.model = model
         self.effort_register = effort_register
-        renamed = model.state_registers
-        registers = {name: (effort_register if name == 'effort' else renamed.get(name, name))
-                     for name in self.names}
-        present = tuple(name for name in self.names if model.has(registers[name]))
-        self._registers = {name: registers[name] for name in present}
+        present = tuple(name for name in self.names
+                        if model.has(effort_register if name == 'effort' else name))
+        self._registers = {name: model.item(effort_register if name == 'effort' else name).name
+                           for name in present}
         block_bytes = sum(model.item(self._registers[name]).size for name in present)
         # Indirect when the table has entries enough (the compact X330 drops PWM to fit).
         fits = [name for name in present if name not in self.COMPACT_DROPS]
@@ -155,8 +154,8 @@ class StateBlock(BlockShape):
         self._positions = tuple(self.index[name] for name in kept)
         # Present Speed / Present Load of the older tables: bit 10 the direction, not a sign.
         self._direction_bits = tuple(
-            (self.index[name], model.direction_bits[self._registers[name]])
-            for name in kept if self._registers[name] in model.direction_bits)
+            (self.index[name], model.item(self._registers[name]).direction_bit)
+            for name in kept if model.item(self._registers[name]).direction_bit)
         if self.direct:
             self._layout_direct(model, kept)
         else:
@@ -172,7 +171,7 @@ class StateBlock(BlockShape):
         for name in kept:
             item = model.item(self._registers[name])
             fields.append(BlockField(item.name, offset, item.size))
-            codes += self._CODES[item.size, item.signed]
+            codes += self._code(item)
             offset += item.size
         self.fields: tuple[BlockField, ...] = tuple(fields)
         self.struct = struct.Struct('<' + codes)
@@ -201,7 +200,7 @@ class StateBlock(BlockShape):
         for item, name in items:
             if item.address < position:
                 raise ValueError(f'{model.label}: {item.name} overlaps another state register')
-            codes += 'x' * (item.address - position) + self._CODES[item.size, item.signed]
+            codes += 'x' * (item.address - position) + self._code(item)
             fields.append(BlockField(item.name, item.address - start, item.size))
             order.append(self.index[name])
             position = item.address + item.size
@@ -214,6 +213,10 @@ class StateBlock(BlockShape):
         # One span, read whole whatever part the cycle asks for.
         self.motion_size = self.tagged_size = self.size
         self.motion_struct = self.tagged_struct = self.struct
+
+    def _code(self, item: Item) -> str:
+        # A direction-bit value is read unsigned and given its sign afterwards (_spread).
+        return self._CODES[item.size, item.signed and not item.direction_bit]
 
     def has(self, field_name: str) -> bool:
         """Return whether the model has the register behind this field (else it reads 0)."""

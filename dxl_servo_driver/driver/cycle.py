@@ -12,7 +12,6 @@ or invented value.
 """
 
 from dataclasses import dataclass
-import struct
 import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple, TypeVar
@@ -34,7 +33,6 @@ SILENT_AFTER_FAILURES = 3
 FAST_EMPTY_LIMIT = 3
 _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
 SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, data)
-_PACKERS = {1: struct.Struct('<b'), 2: struct.Struct('<h'), 4: struct.Struct('<i')}
 
 
 @dataclass(eq=False)
@@ -407,7 +405,7 @@ class Cycle:
                 for sid, value in goals.items():
                     item = by_id[sid].model.item(register)
                     groups.setdefault((item.address, item.size), []).append(
-                        (sid, _PACKERS[item.size].pack(value)))
+                        (sid, item.encode(value)))
                 for (address, size), data in groups.items():
                     bus.sync_write(address, size, data)
             return written

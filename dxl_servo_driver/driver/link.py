@@ -75,13 +75,16 @@ class Link:
     def _read_dated(self, servo: Servo, item: Item) -> int:
         """Read a value that changes by itself with the Realtime Tick, refusing a late reply."""
         bus = self.io()
+        if not servo.model.has('realtime_tick'):
+            # A table without a tick (the XL-320): the bus's own checks are all there is.
+            return item.decode(bus.read(servo.servo_id, item.address, item.size, confirm=False))
         tick = servo.model.item('realtime_tick')
         start = min(tick.address, item.address)
         end = max(tick.address + tick.size, item.address + item.size)
         if end - start > DATED_SPAN_BYTES:
             # Too far from the tick to read both in one go: the length tag is the guard.
             data = bus.read(servo.servo_id, item.address, item.size, confirm=False)
-            return int.from_bytes(data, 'little', signed=item.signed)
+            return item.decode(data)
         data, sent_s = bus.read_fresh(servo.servo_id, start, end - start)
         at = tick.address - start
         if not self._stale.check(servo, int.from_bytes(data[at:at + tick.size], 'little'),
@@ -89,7 +92,7 @@ class Link:
             raise CorruptReply(f'id {servo.servo_id}: a reply older than its request '
                                '(refused)', servo.servo_id)
         at = item.address - start
-        return int.from_bytes(data[at:at + item.size], 'little', signed=item.signed)
+        return item.decode(data[at:at + item.size])
 
     def write(self, servo: Servo, name: str, value: int) -> None:
         """Write a register, keeping what the servo's record says about it."""

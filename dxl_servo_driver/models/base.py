@@ -28,6 +28,26 @@ class Item:
     limit: str | None    # the register that bounds it at run time (a data limit error)
     unit: str
     description: str
+    # Present Speed / Load of the older tables: this bit is the direction (CW), the bits below
+    # it the magnitude; 0 for a plain (two's complement or unsigned) value.
+    direction_bit: int = 0
+
+    def decode(self, data: bytes | bytearray) -> int:
+        """Return the value of the item's bytes (little-endian; the direction bit as a sign)."""
+        if self.direction_bit:
+            raw = int.from_bytes(data, 'little')
+            magnitude = raw & (self.direction_bit - 1)
+            return -magnitude if raw & self.direction_bit else magnitude
+        return int.from_bytes(data, 'little', signed=self.signed)
+
+    def encode(self, value: int) -> bytes:
+        """Return the item's bytes holding value (OverflowError when it does not fit)."""
+        if self.direction_bit:
+            if abs(value) >= self.direction_bit:
+                raise OverflowError(f'{self.name}: {value} outside its magnitude')
+            value = (self.direction_bit | -value) if value < 0 else value
+            return value.to_bytes(self.size, 'little')
+        return value.to_bytes(self.size, 'little', signed=self.signed)
 
 
 class ModelError(ConfigurationError):
@@ -112,10 +132,9 @@ class Model:
     physics: Physics
     min_firmware: int = 0
     fast_sync_read_firmware: int | None = None
-    # Fields of the state block this table names otherwise (block field -> its register).
-    state_registers: dict[str, str] = field(default_factory=dict, hash=False)
-    # Registers whose sign is a direction bit (value & bit), not two's complement: bit.
-    direction_bits: dict[str, int] = field(default_factory=dict, hash=False)
+    # The XM430 manual's name of a register -> this table's own name for it (an older manual
+    # says Present Speed): the driver and the simulator ask by the first, users see the second.
+    roles: dict[str, str] = field(default_factory=dict, hash=False)
     # One Profile Acceleration unit (the XM430 manual: 214.577 rev/min^2).
     acceleration_unit_rpm2: float = 214.577
     # Goal Position's range in the multi-turn modes (the XM430 manual: +-256 turns).
@@ -147,15 +166,17 @@ class Model:
         return first is not None and firmware >= first
 
     def item(self, name: str) -> Item:
-        """Return the item with this snake_case name."""
-        try:
-            return self._by_name[name]
-        except KeyError:
-            raise KeyError(f'{self.label} has no control-table item named {name!r}') from None
+        """Return the item with this snake_case name (or the one playing its role)."""
+        found = self._by_name.get(name)
+        if found is None:
+            found = self._by_name.get(self.roles.get(name, ''))
+            if found is None:
+                raise KeyError(f'{self.label} has no control-table item named {name!r}')
+        return found
 
     def has(self, name: str) -> bool:
-        """Return whether the table has an item with this name."""
-        return name in self._by_name
+        """Return whether the table has an item with this name (or one playing its role)."""
+        return name in self._by_name or self.roles.get(name, '') in self._by_name
 
     def by_address(self, address: int) -> Item:
         """Return the item starting at this address."""
