@@ -32,6 +32,22 @@ MANUAL_MODEL = model_for(MODEL_NUMBER)
 MANUAL_MODEL_NUMBERS = frozenset(MODEL_NUMBERS)
 
 
+class _DirectionCodec:
+    """struct.Struct's unpack_from/pack_into for a value whose sign is a direction bit."""
+
+    def __init__(self, item: Item) -> None:
+        self._item = item
+        self.format = f'<{"B" if item.size == 1 else "H"}'
+
+    def unpack_from(self, data: bytes | bytearray, address: int) -> tuple[int]:
+        return (self._item.decode(data[address:address + self._item.size]),)
+
+    def pack_into(self, data: bytearray, address: int, value: int) -> None:
+        bit = self._item.direction_bit
+        value = max(1 - bit, min(bit - 1, value))   # the physics may exceed the magnitude
+        data[address:address + self._item.size] = self._item.encode(value)
+
+
 class TableError(Exception):
     """A control-table access refused with a status error code."""
 
@@ -58,13 +74,21 @@ class Table:
         for item in model.items:
             for offset in range(item.size):
                 self.owner[item.address + offset] = item
-        self.structs: dict[str, struct.Struct] = {
-            item.name: struct.Struct(_FORMATS[(item.size, item.signed)]) for item in model.items}
+        self.structs: dict[str, struct.Struct | _DirectionCodec] = {
+            item.name: _DirectionCodec(item) if item.direction_bit
+            else struct.Struct(_FORMATS[(item.size, item.signed)]) for item in model.items}
         # name -> (unpack_from, address) and (pack_into, address, mask, wrap threshold):
         # get() and set() run tens of times per servo per millisecond.
         self.getters = {item.name: (self.structs[item.name].unpack_from, item.address)
                         for item in model.items}
         self.setters = {item.name: self._setter(item) for item in model.items}
+        # The X names of registers this table calls otherwise (Model.roles) reach them too.
+        for role, own in model.roles.items():
+            if own in self.by_name and role not in self.by_name:
+                self.by_name[role] = self.by_name[own]
+                self.structs[role] = self.structs[own]
+                self.getters[role] = self.getters[own]
+                self.setters[role] = self.setters[own]
         # indirect data address -> address of the indirect address item that maps it
         self.indirect: dict[int, int] = {data: address for address, data in model.indirect}
         self.indirect_low = min(self.indirect, default=self.size)
@@ -105,7 +129,8 @@ class Table:
     def _setter(self, item: Item) -> tuple[Callable[..., None], int, int, int]:
         bits = 8 * item.size
         modulus = 1 << bits
-        threshold = 1 << (bits - 1) if item.signed else modulus
+        # A direction-bit value wraps as a signed one would, then the codec clamps it.
+        threshold = 1 << (bits - 1) if item.signed or item.direction_bit else modulus
         return self.structs[item.name].pack_into, item.address, modulus - 1, threshold
 
 
