@@ -9,7 +9,7 @@ import math
 
 from dxl_servo_driver.errors import ConfigurationError
 
-__all__ = ['Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
+__all__ = ['datasheet', 'Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,9 @@ class Model:
     current_unit_a: float | None
     load_unit_ratio: float | None
     velocity_unit_rpm: float
-    pulses_per_rev: int
+    # Pulses per output revolution. Not whole where the encoder spans less than a turn
+    # (1,024 pulses over 300 degrees: 1,228.8 per revolution).
+    pulses_per_rev: float
     position_zero_raw: int
     pwm_full_raw: int
     voltage_unit_v: float
@@ -141,6 +143,16 @@ class Model:
     extended_position_limit: int = 1_048_575
     # Position mode ignores a Homing Offset beyond this (the XM430 manual); None: no such rule.
     homing_position_mode_limit: int | None = 1024
+    # The protocol the model speaks out of the box (an X servo may be switched to 1.0
+    # through Protocol Type (13); the driver speaks 2.0 to it).
+    protocol: float = 2.0
+    # The register that selects the mode: 'operating_mode', 'control_mode' (XL-320, 1 wheel
+    # 2 joint), or '' where the mode follows from the CW/CCW angle limits (Protocol 1.0:
+    # both 0 is wheel mode, both 4095 multi-turn on the MX).
+    mode_register: str = 'operating_mode'
+    # The first RAM address: items below it are EEPROM, written only with torque off (64
+    # on the X and MX, 512 on the P, PRO(A), RH-P12-RN and Y, 24 on Protocol 1.0 tables).
+    eeprom_end: int = 64
     _by_name: dict[str, Item] = field(
         init=False, repr=False, compare=False, hash=False, default_factory=dict)
     _by_address: dict[int, Item] = field(
@@ -194,12 +206,6 @@ class Model:
         return self.by_address(key)
 
     @property
-    def ram_start(self) -> int:
-        """Return the first RAM address (EEPROM lies below it, locked while torque is on)."""
-        return min((item.address for item in self.items if item.area == 'ram'),
-                   default=self.table_end)
-
-    @property
     def table_end(self) -> int:
         """Return one past the last byte of the table."""
         return max(item.address + item.size for item in self.items)
@@ -217,3 +223,10 @@ class Model:
     def decode_hardware_errors(self, status: int) -> list[str]:
         """Return the names of the bits set in a Hardware Error Status value."""
         return [name for bit, name in self.hardware_error_bits.items() if status & bit]
+
+
+def datasheet(gear_ratio: float, nominal_voltage_v: float,
+              rows: tuple[tuple[float, float, float, float], ...], source: str) -> Physics:
+    """Return Physics from (volts, stall N*m, stall A, no-load rpm) rows in any order."""
+    points = tuple(VoltagePoint(*row) for row in sorted(rows))
+    return Physics(gear_ratio, nominal_voltage_v, points, source)

@@ -1,5 +1,8 @@
 """
-The supported DYNAMIXEL X-series models, each stated as its differences from the XM430 manual.
+The supported DYNAMIXEL models: the X series here, the other families from their modules.
+
+Every X model is stated as its differences from the XM430 manual; the MX(2.0) (models.mx)
+are too. catalog indexes them all by model number and names the refused ones.
 
 Sources: the XM430 manual and models/xm430.py (authority for 1020 and 1030), the ROBOTIS
 model files shipped with dynamixel-sdk 4.1 (addresses and sizes of every model) and the
@@ -14,18 +17,20 @@ the model files do (the X330's indirect block).
 
 from dataclasses import dataclass, field
 
-from dxl_servo_driver.models import modes, xm430
+from dxl_servo_driver.models import modes, mx, xm430
 from dxl_servo_driver.models.base import Item, Model, ModelError, Physics, VoltagePoint
 from dxl_servo_driver.models.layout import (
     build, indirect_items, indirect_pairs, is_indirect, item, Overrides, Value)
 from dxl_servo_driver.models.names import OTHER_MODELS
 
 __all__ = ['ALL_MODELS', 'FAMILIES', 'MANUAL_DIFFERENCES', 'model_for', 'model_named',
-           'SUPPORTED', 'unsupported_reason']
+           'SUPPORTED', 'unsupported_reason', 'X_MODELS']
 
-FAMILIES: tuple[str, ...] = (
+X_FAMILIES: tuple[str, ...] = (
     'XM430/XH430/XD430', 'XM540/XH540/XD540', 'XW430/XW540', 'XL430/2XL430/XC430/2XC430',
     'XL330/XC330')
+# The families as the refusal text and the README name them.
+FAMILIES: tuple[str, ...] = (*X_FAMILIES, 'MX-28/64/106(2.0)')
 
 SIX_MODES: dict[str, int] = modes.numbers(*modes.NAMES)
 # XL430/XC430 have no current sensing, hence no current nor current-based position mode.
@@ -422,10 +427,16 @@ def _index(models: list[Model]) -> dict[int, tuple[Model, ...]]:
             for number, variants in sorted(table.items())}
 
 
+X_MODELS: tuple[Model, ...] = tuple(
+    variant for variants in _index(_MODELS).values() for variant in variants)
+# The other families, each from its own module.
+_MODELS += mx.MODELS
 SUPPORTED: dict[int, tuple[Model, ...]] = _index(_MODELS)
 ALL_MODELS: tuple[Model, ...] = tuple(
     variant for variants in SUPPORTED.values() for variant in variants)
 _BY_NAME: dict[str, int] = {model.name.upper(): model.number for model in ALL_MODELS}
+_PROTOCOLS = ' and '.join(
+    f'Protocol {version:.1f}' for version in sorted({model.protocol for model in ALL_MODELS}))
 
 
 def unsupported_reason(number: int) -> str:
@@ -440,7 +451,7 @@ def unsupported_reason(number: int) -> str:
         name, kind = known
         what = (f'model number {number} is the {name}, {kind}, which this driver does not '
                 'support')
-    return f'{what}; supported: DYNAMIXEL {families} (Protocol 2.0)'
+    return f'{what}; supported: DYNAMIXEL {families} ({_PROTOCOLS})'
 
 
 def model_for(number: int, firmware: int | None = None) -> Model:

@@ -21,9 +21,13 @@ Overrides: TypeAlias = Mapping[str, Mapping[str, Value]]
 
 def item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
          maximum: int, *, signed: bool = False, limit: str | None = None, unit: str = '',
-         description: str = '') -> Item:
-    """Return an Item, its area (EEPROM below 64, RAM above) derived from the address."""
-    area = 'eeprom' if address < EEPROM_END else 'ram'
+         description: str = '', eeprom_end: int = EEPROM_END) -> Item:
+    """
+    Return an Item, its area derived from the address.
+
+    EEPROM below eeprom_end (64 on the X: the default), RAM from it on.
+    """
+    area = 'eeprom' if address < eeprom_end else 'ram'
     return Item(name, address, size, area, access, initial, minimum, maximum, signed, limit,
                 unit, description)
 
@@ -68,22 +72,26 @@ def indirect_pairs(*banks: tuple[int, int, int]) -> tuple[tuple[int, int], ...]:
     return tuple(pairs)
 
 
-def indirect_items(pairs: tuple[tuple[int, int], ...], last_ram_address: int) -> list[Item]:
+def indirect_items(pairs: tuple[tuple[int, int], ...], last_ram_address: int, *,
+                   first_ram_address: int = FIRST_RAM_ADDRESS,
+                   eeprom_end: int = EEPROM_END) -> list[Item]:
     """
     Return the indirect_address_N / indirect_data_N items for these pairs.
 
     Each address entry powers on pointing at its own data byte (the e-manual's initial
-    values) and accepts any RAM address up to the table's last byte.
+    values) and accepts any RAM address from first_ram_address up to last_ram_address (the
+    X defaults: 64 on; the P series 512..1,023). Their areas follow eeprom_end: the P
+    series keeps its address entries in EEPROM.
     """
     items: list[Item] = []
     for number, (address, data) in enumerate(pairs, start=1):
         items.append(item(
-            f'indirect_address_{number}', address, 2, 'RW', data, FIRST_RAM_ADDRESS,
-            last_ram_address,
+            f'indirect_address_{number}', address, 2, 'RW', data, first_ram_address,
+            last_ram_address, eeprom_end=eeprom_end,
             description=f'Indirect Address {number} '
-                        f'(RAM address {FIRST_RAM_ADDRESS}..{last_ram_address})'))
+                        f'(RAM address {first_ram_address}..{last_ram_address})'))
         items.append(item(f'indirect_data_{number}', data, 1, 'RW', 0, 0, U8,
-                          description=f'Indirect Data {number}'))
+                          eeprom_end=eeprom_end, description=f'Indirect Data {number}'))
     return items
 
 

@@ -1,15 +1,26 @@
 """
 Names of the DYNAMIXEL models this package refuses, by model number.
 
-Our own list of the models ROBOTIS's SDK knows (its dynamixel.model), so a refusal can say
-what the servo on the bus is.  Nothing is read at run time.
+Our own list of the models ROBOTIS's SDK knows (its dynamixel.model) and of the Protocol 1.0
+models the e-manual documents, so a refusal can say what the servo on the bus is.  A model
+leaves this list when the catalogue supports it.  Nothing is read at run time.
 """
 
 # model number -> (name, what it is)
 OTHER_MODELS: dict[int, tuple[str, str]] = {
-    30: ('MX-28(2.0)', 'an MX servo on Protocol 2.0 firmware'),
-    311: ('MX-64(2.0)', 'an MX servo on Protocol 2.0 firmware'),
-    321: ('MX-106(2.0)', 'an MX servo on Protocol 2.0 firmware'),
+    # Protocol 1.0 models (ROBOTIS e-manual model numbers).
+    10: ('RX-10', 'a Protocol 1.0 DYNAMIXEL servo'),
+    12: ('AX-12A', 'a Protocol 1.0 DYNAMIXEL servo'),
+    18: ('AX-18A', 'a Protocol 1.0 DYNAMIXEL servo'),
+    24: ('RX-24F', 'a Protocol 1.0 DYNAMIXEL servo'),
+    28: ('RX-28', 'a Protocol 1.0 DYNAMIXEL servo'),
+    29: ('MX-28', 'an MX servo on Protocol 1.0 firmware'),
+    64: ('RX-64', 'a Protocol 1.0 DYNAMIXEL servo'),
+    107: ('EX-106+', 'a Protocol 1.0 DYNAMIXEL servo'),
+    300: ('AX-12W', 'a Protocol 1.0 DYNAMIXEL servo'),
+    310: ('MX-64', 'an MX servo on Protocol 1.0 firmware'),
+    320: ('MX-106', 'an MX servo on Protocol 1.0 firmware'),
+    360: ('MX-12W', 'an MX servo on Protocol 1.0 firmware'),
     350: ('XL-320', 'an X-series servo with a control table unlike the others'),
     # The P series is the renamed PRO+; 2000 is the P-series successor of the PRO
     # H42-20-S300-R(A) (model 51201), which is named too so either search finds it.

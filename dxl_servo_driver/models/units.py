@@ -60,7 +60,7 @@ class Units:
     torque_constant_nm_per_a: float
     rad_per_pulse: float
     zero_raw: int
-    pulses_per_rev: int
+    pulses_per_rev: float
     rad_s_per_velocity_raw: float
     a_per_current_raw: float | None
     pwm_full_raw: int
@@ -88,12 +88,12 @@ class Units:
 
         The XM430 manual: it becomes the position within one turn plus the Homing Offset.
         """
-        return (present_raw - homing_offset) % self.pulses_per_rev + homing_offset
+        return int((present_raw - homing_offset) % self.pulses_per_rev) + homing_offset
 
     def kept_turns(self, before_raw: int, after_raw: int) -> int:
         """Return the whole turns (in pulses) a re-initialisation took from before_raw."""
         turn = self.pulses_per_rev
-        return int(round((before_raw - after_raw) / turn)) * turn
+        return int(round(round((before_raw - after_raw) / turn) * turn))
 
     # velocity, current, pwm, voltage, effort -----------------------------------------------
     def velocity_to_rad_s(self, raw: int) -> float:

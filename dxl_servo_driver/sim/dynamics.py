@@ -307,7 +307,8 @@ class ServoDynamics:
     def reinit_present_position(self, regs: RegisterStore) -> None:
         """Present position := horn position within one turn + homing offset."""
         turns = math.floor(self.horn_position_pulse / self._pulses_per_rev)
-        self._turn_offset_pulse = -self._pulses_per_rev * turns
+        # Whole pulses: a model whose turn is not a whole number of pulses rounds here.
+        self._turn_offset_pulse = int(round(-self._pulses_per_rev * turns))
         homing = _homing_offset(regs, self._homing_ignored)
         regs.set('present_position', self._present_position_raw(homing))
 

@@ -99,7 +99,7 @@ class Table:
             model.modes[name] for name in ('extended_position', 'current_based_position')
             if name in model.modes)
         self.eeprom = tuple(item for item in model.items if item.area == 'eeprom')
-        self.ram_start = model.ram_start
+        self.ram_start = model.eeprom_end
         self.ram_initial = tuple((item.name, item.initial) for item in model.items
                                  if item.area == 'ram' and item.initial)
         self.goals_from_limits = tuple(

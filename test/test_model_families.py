@@ -1,0 +1,243 @@
+"""
+The families beyond the X series: SDK model files item by item, consistency, units, physics.
+
+Every model outside the X series is checked against the ROBOTIS model file dynamixel-sdk ships
+for it (address and size of every row), and for what the data must hold whatever the family.
+"""
+
+import importlib.util
+import math
+import pathlib
+import re
+
+from dxl_servo_driver.models import (
+    ALL_MODELS, FAMILIES, Model, model_for, model_named, ModelError, modes, SUPPORTED,
+    unsupported_reason, X_MODELS)
+from dxl_servo_driver.models.names import OTHER_MODELS
+import pytest
+
+OTHERS = tuple(model for model in ALL_MODELS if model not in X_MODELS)
+
+
+def _sdk_tables() -> pathlib.Path | None:
+    spec = importlib.util.find_spec('dynamixel_easy_sdk')
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    return pathlib.Path(list(spec.submodule_search_locations)[0]) / 'control_table'
+
+
+SDK = _sdk_tables()
+needs_sdk = pytest.mark.skipif(
+    SDK is None, reason='dynamixel_easy_sdk (dynamixel-sdk 4.1) is not installed')
+
+# SDK names that do not snake-case into ours (the X convention; the Y keeps its own names).
+SDK_NAMES = {'Protocol Type': 'protocol_version', 'Secondary(Shadow) ID': 'secondary_id'}
+SDK_ALIASES = {
+    'Indirect Address Write': 'indirect_address_', 'Indirect Address Read': 'indirect_address_',
+    'Indirect Data Write': 'indirect_data_', 'Indirect Data Read': 'indirect_data_',
+}
+# Items a table has beyond its model file, by family, each from the e-manual.
+EXTRAS: dict[str, set[str]] = {
+    'MX(2.0)': set(),
+    'P': set(),
+    'PRO(A)': set(),
+    'RH-P12-RN': set(),
+    'Y': set(),
+    'XL-320': set(),
+}
+
+
+def _label(model: Model) -> str:
+    return f'{model.number}-{model.name}'
+
+
+def _sdk_rows(path: pathlib.Path) -> list[tuple[int, int, str]]:
+    lines = path.read_text(encoding='utf-8').splitlines()
+    start = lines.index('[control table]') + 2
+    rows = []
+    for line in lines[start:]:
+        if line.strip():
+            address, size, name = line.split('\t')[:3]
+            rows.append((int(address), int(size), name.strip()))
+    return rows
+
+
+def _type_info(path: pathlib.Path) -> dict[str, float]:
+    lines = path.read_text(encoding='utf-8').splitlines()
+    info = {}
+    for line in lines[lines.index('[type info]') + 2:]:
+        if not line.strip():
+            break
+        name, value = line.split('\t')[:2]
+        info[name] = float(value)
+    return info
+
+
+def _listed() -> dict[int, str]:
+    assert SDK is not None
+    lines = (SDK / 'dynamixel.model').read_text(encoding='utf-8').splitlines()[1:]
+    return {int(number): name for number, name in (line.split() for line in lines if line)}
+
+
+def _our_name(model: Model, sdk_name: str) -> str:
+    if model.family != 'Y' and sdk_name in SDK_NAMES:
+        return SDK_NAMES[sdk_name]
+    return re.sub(r'[^0-9a-z]+', '_', sdk_name.lower()).strip('_')
+
+
+every_other = pytest.mark.parametrize('model', OTHERS, ids=_label)
+
+
+@needs_sdk
+@every_other
+def test_every_model_file_row_is_in_the_table(model: Model) -> None:
+    assert SDK is not None
+    path = SDK / _listed()[model.number]
+    seen = set()
+    for address, size, sdk_name in _sdk_rows(path):
+        if sdk_name in SDK_ALIASES:
+            ours = model.by_address(address)
+            assert ours.name.startswith(SDK_ALIASES[sdk_name]), (sdk_name, ours)
+        else:
+            ours = model.item(_our_name(model, sdk_name))
+            assert ours.address == address, (sdk_name, ours)
+        assert ours.size == size, (sdk_name, ours)
+        seen.add(ours.name)
+    extras = {item.name for item in model.items} - seen
+    unexplained = {name for name in extras
+                   if name not in EXTRAS[model.family] and not name.startswith('indirect_')}
+    assert not unexplained, f'{model.label}: items the model file lacks: {unexplained}'
+
+
+@needs_sdk
+@every_other
+def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> None:
+    assert SDK is not None
+    path = SDK / _listed()[model.number]
+    info = _type_info(path)
+    if model.family in ('XL-320', 'RH-P12-RN'):
+        pytest.skip('the model file type info is not per turn here (see the module)')
+    per_rad = (info['value_of_max_radian_position'] - info['value_of_zero_radian_position']) \
+        / info['max_radian']
+    # Within a pulse: the X-style files give 4095 (not 4096) at +pi.
+    assert model.pulses_per_rev == pytest.approx(per_rad * 2 * math.pi, rel=1e-3)
+    assert model.position_zero_raw == info['value_of_zero_radian_position']
+    for line in path.read_text(encoding='utf-8').splitlines():
+        if line.startswith('Present Velocity\t'):
+            rad_s = float(line.split('\t')[1])
+            assert model.velocity_unit_rpm * 2 * math.pi / 60 == pytest.approx(rad_s, rel=1e-3)
+
+
+@needs_sdk
+def test_the_sdk_lists_every_supported_number_but_one() -> None:
+    listed = _listed()
+    assert set(SUPPORTED) - set(listed) == {1280}   # XW430-T200: only the e-manual numbers it
+    assert all(number in SUPPORTED or number in OTHER_MODELS for number in listed)
+
+
+@every_other
+def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
+    names = [item.name for item in model.items]
+    assert len(names) == len(set(names))
+    assert [item.address for item in model.items] == sorted(item.address for item in model.items)
+    for item, following in zip(model.items, model.items[1:]):
+        assert item.address + item.size <= following.address, (item.name, following.name)
+    for item in model.items:
+        assert re.fullmatch(r'[a-z][a-z0-9_]*', item.name), item.name
+        assert item.size in (1, 2, 4) and item.access in ('R', 'RW')
+        assert item.area == ('eeprom' if item.address < model.eeprom_end else 'ram'), item.name
+        assert item.minimum <= item.initial <= item.maximum, item.name
+        bits = 8 * item.size - (1 if item.signed else 0)
+        low, high = (-(1 << bits), (1 << bits) - 1) if item.signed else (0, (1 << bits) - 1)
+        assert low <= item.minimum and item.maximum <= high, item.name
+        if item.limit is not None:
+            assert model.has(item.limit), item.name
+        assert model.lookup(item.address) is item and model.lookup(item.name) is item
+
+
+@every_other
+def test_modes_units_and_bauds(model: Model) -> None:
+    assert model.modes and set(model.modes) <= set(modes.NAMES)
+    assert {'velocity', 'position'} <= set(model.modes)
+    assert len(set(model.modes.values())) == len(model.modes)
+    if model.mode_register:
+        register = model.item(model.mode_register)
+        assert all(register.minimum <= value <= register.maximum
+                   for value in model.modes.values())
+        assert register.initial in model.modes.values()
+    assert model.protocol in (1.0, 2.0)
+    assert model.velocity_unit_rpm > 0 and model.pulses_per_rev > 0
+    assert model.pwm_full_raw > 0 and model.voltage_unit_v > 0
+    assert (model.current_unit_a is not None) == model.has('present_current')
+    assert model.current_unit_a is None or model.current_unit_a > 0
+    assert (model.load_unit_ratio is not None) == model.has('present_load')
+    assert ('current' in model.modes) <= model.has('goal_current')
+    for name in modes.NAMES:
+        if name in model.modes:
+            for register in modes.BY_NAME[name].slot:
+                assert model.has(register), (name, register)
+    baud = model.item('baud_rate_bus' if model.family == 'Y' else 'baud_rate')
+    assert sorted(model.bauds) == list(range(baud.minimum, baud.maximum + 1))
+    speeds = [model.bauds[value] for value in sorted(model.bauds)]
+    assert speeds == sorted(set(speeds)) and baud.initial in model.bauds
+    assert all(bit & (bit - 1) == 0 and bit < 0x100 for bit in model.hardware_error_bits)
+    assert bool(model.hardware_error_bits) == model.has('hardware_error_status')
+    assert model.item('model_number').initial == model.number
+
+
+@every_other
+def test_indirect_entries_match_the_items(model: Model) -> None:
+    addresses = [item for item in model.items if item.name.startswith('indirect_address_')]
+    data = [item for item in model.items if item.name.startswith('indirect_data_')]
+    assert len(model.indirect) == len(addresses) == len(data)
+    for number, (address, datum) in enumerate(model.indirect, start=1):
+        entry = model.item(f'indirect_address_{number}')
+        target = model.item(f'indirect_data_{number}')
+        assert (entry.address, entry.size, entry.initial) == (address, 2, datum)
+        assert (target.address, target.size) == (datum, 1)
+        assert entry.minimum == model.eeprom_end and entry.maximum >= model.table_end - 1
+
+
+@every_other
+def test_physics_is_usable(model: Model) -> None:
+    physics = model.physics
+    voltages = [point.voltage_v for point in physics.points]
+    assert voltages == sorted(set(voltages))
+    assert any(math.isclose(v, physics.nominal_voltage_v) for v in voltages)
+    assert physics.gear_ratio > 1 and physics.source
+    assert model.torque_constant_nm_per_a > 0 and model.stall_torque_nm > 0
+    for point in physics.points:
+        assert point.stall_current_a > 0 and point.no_load_speed_rpm > 0
+    low = model.item('min_voltage_limit')
+    high = model.item('max_voltage_limit')
+    nominal = physics.nominal_voltage_v / model.voltage_unit_v
+    assert low.minimum <= nominal <= high.maximum
+
+
+def test_families_are_named_in_refusals() -> None:
+    for number in OTHER_MODELS:
+        reason = unsupported_reason(number)
+        assert OTHER_MODELS[number][0] in reason
+        assert all(family in reason for family in FAMILIES)
+        with pytest.raises(ModelError):
+            model_for(number)
+    assert not set(OTHER_MODELS) & set(SUPPORTED)
+
+
+# --- per family --------------------------------------------------------------------------
+
+
+def test_mx_2_0() -> None:
+    mx28, mx64, mx106 = model_for(30), model_for(311), model_for(321)
+    assert set(mx28.modes) == {'velocity', 'position', 'extended_position', 'pwm'}
+    assert mx28.has('present_load') and not mx28.has('goal_current')
+    assert mx64.current_unit_a == pytest.approx(3.36e-3) == mx106.current_unit_a
+    assert mx64.modes == modes.numbers(*modes.NAMES) == mx106.modes
+    assert mx64.item('current_limit').maximum == 1941
+    assert mx106.item('current_limit').maximum == 2047
+    assert mx106.item('drive_mode').maximum == 7 and mx64.item('drive_mode').maximum == 5
+    for model in (mx28, mx64, mx106):
+        assert model.has('acceleration_limit')
+        assert not model.has('startup_configuration') and not model.has('backup_ready')
+        assert model.fast_sync_read_firmware is None and model.indirect[28] == (578, 634)
+    assert model_named('mx-28(2.0)') is mx28
