@@ -250,7 +250,8 @@ class Services:
                     for other in registers.related_registers(servo.model, item.name):
                         if other not in context:
                             context[other] = link.read(servo, other)
-                    registers.check_register_set(servo.model, context, item.name, value, servo.mode)
+                    registers.check_register_set(servo.model, context, item.name, value,
+                                                 servo.mode)
                     if item.area == 'eeprom' and link.read(servo, 'torque_enable'):
                         return Result(False, f'{item.name} is in EEPROM, which the servo locks '
                                       'while torque is on: call set_torque with enable=false '
