@@ -1,0 +1,99 @@
+"""
+One servo of every family beyond the X series, each driven with its own table and units.
+
+In process (`port: sim`, `<joint>.model`): configure, every mode the model has driven with a
+goal in SI and checked in the register's own unit, the state published in SI, and torque off
+at exit. The X series has the same in test_mixed_models.py.
+"""
+
+import math
+from typing import Any, Dict
+
+from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.units import units_for
+from node_harness import NodeHarness, sim_params
+import pytest
+
+# joint name -> model number: one of each family (and both MX(2.0) tables: with and without
+# current sensing).
+MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321}
+JOINTS = {name: {'id': index, 'model': number, 'operating_mode': 'velocity'}
+          for index, (name, number) in enumerate(MODELS.items(), start=1)}
+IDS = {name: keys['id'] for name, keys in JOINTS.items()}
+# A goal per mode in SI, modest for every model.
+GOALS = {'position': ('position', 0.4), 'extended_position': ('position', 7.0),
+         'current_based_position': ('position', -0.3), 'velocity': ('velocity', 1.2),
+         'current': ('current', 0.15), 'pwm': ('pwm', -0.2)}
+
+
+@pytest.fixture(scope='module')
+def h() -> Any:
+    with NodeHarness(sim_params(JOINTS)) as harness:
+        harness.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+        yield harness
+
+
+def test_each_servo_is_configured_with_its_own_model(h: NodeHarness) -> None:
+    assert h.node is not None
+    for name, number in MODELS.items():
+        assert h.node.manager.servos[name].model.number == number
+        assert h.sim.model(IDS[name]).number == number
+    states = h.servo_states.wait(lambda m: all(s.model for s in m.servos))
+    assert {s.name: s.model for s in states.servos} == {
+        name: model_for(number).name for name, number in MODELS.items()}
+
+
+@pytest.mark.parametrize('name', sorted(MODELS))
+def test_every_mode_takes_goals_in_si_written_in_the_model_s_unit(
+        h: NodeHarness, name: str) -> None:
+    table = model_for(MODELS[name])
+    units = units_for(table)
+    for mode in table.modes:
+        response = h.call('set_operating_mode', name=[name], mode=mode)
+        assert response.success, (name, mode, response.message)
+        assert h.reg(IDS[name], table.mode_register) == table.modes[mode]
+        kind, value = GOALS[mode]
+        response = h.call(f'set_{kind}', name=[name], value=[value])
+        assert response.success, (name, mode, response.message)
+        assert h.node is not None
+        servo = h.node.manager.servos[name]
+        offset = servo.turn_offset if kind == 'position' else 0
+        register = units.kinds[kind].register
+        assert h.reg(IDS[name], register) == units.kinds[kind].to_raw(value) - offset, \
+            (name, mode)
+    if 'current' not in table.modes:
+        response = h.call('set_operating_mode', name=[name], mode='current')
+        assert not response.success and 'has no current mode' in response.message
+    assert h.call('set_operating_mode', name=[name], mode='velocity').success
+
+
+def test_state_is_published_in_si(h: NodeHarness) -> None:
+    names = list(MODELS)
+    for name in names:
+        assert h.call('set_operating_mode', name=[name], mode='velocity').success
+    assert h.call('set_velocity', name=names, value=[1.0] * len(names)).success
+    msg = h.joint_states.wait(
+        lambda m: m.name == names and all(abs(v - 1.0) < 0.1 for v in m.velocity),
+        timeout_s=15.0)
+    assert h.node is not None
+    for index, name in enumerate(names):
+        servo = h.node.manager.servos[name]
+        table = model_for(MODELS[name])
+        raw = h.reg(IDS[name], 'present_velocity')
+        # The register in the model's own unit and the published value agree (one moment
+        # apart, so within what the servo's velocity loop wanders).
+        assert abs(raw * table.velocity_unit_rpm * 2 * math.pi / 60 - msg.velocity[index]) < 0.15
+        assert servo.units.rad_s_per_velocity_raw == pytest.approx(
+            table.velocity_unit_rpm * 2 * math.pi / 60)
+    assert h.call('set_velocity', name=names, value=[0.0] * len(names)).success
+
+
+def test_torque_is_off_at_exit() -> None:
+    harness = NodeHarness(sim_params(JOINTS))
+    try:
+        harness.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+        assert all(harness.reg(servo_id, 'torque_enable') == 1 for servo_id in IDS.values())
+    finally:
+        harness.close()
+    assert all(harness.sim.servo(servo_id).memory.get('torque_enable') == 0
+               for servo_id in IDS.values())
