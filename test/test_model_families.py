@@ -41,7 +41,8 @@ EXTRAS: dict[str, set[str]] = {
     'MX(2.0)': set(),
     'P': set(),
     'PRO(A)': set(),
-    'RH-P12-RN': set(),
+    # The e-manual's External Port Data 1..4 (600..606); the model file stops at the modes.
+    'RH-P12-RN': {f'external_port_data_{n}' for n in (1, 2, 3, 4)},
     'Y': set(),
     'XL-320': set(),
 }
@@ -158,7 +159,8 @@ def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
 @every_other
 def test_modes_units_and_bauds(model: Model) -> None:
     assert model.modes and set(model.modes) <= set(modes.NAMES)
-    assert {'velocity', 'position'} <= set(model.modes)
+    # Every family holds a position; the gripper has no velocity mode.
+    assert set(model.modes) & modes.POSITION_MODES
     assert len(set(model.modes.values())) == len(model.modes)
     if model.mode_register:
         register = model.item(model.mode_register)
@@ -241,3 +243,27 @@ def test_mx_2_0() -> None:
         assert not model.has('startup_configuration') and not model.has('backup_ready')
         assert model.fast_sync_read_firmware is None and model.indirect[28] == (578, 634)
     assert model_named('mx-28(2.0)') is mx28
+
+
+def test_p_pro_a_and_the_gripper() -> None:
+    ph54 = model_for(2020)
+    assert ph54.eeprom_end == 512 and ph54.item('torque_enable').address == 512
+    assert ph54.item('indirect_address_1').area == 'eeprom'
+    assert ph54.item('indirect_address_128').address == 422 and len(ph54.indirect) == 128
+    assert ph54.item('indirect_address_1').minimum == 512
+    assert ph54.pulses_per_rev == 1_003_846 and ph54.position_zero_raw == 0
+    assert ph54.velocity_unit_rpm == 0.01 and ph54.current_unit_a == 0.001
+    assert ph54.pwm_full_raw == 2009 and max(ph54.bauds.values()) == 10_500_000
+    assert set(ph54.modes) == {'current', 'velocity', 'position', 'extended_position', 'pwm'}
+    assert model_for(2000).pulses_per_rev == 607_500
+    assert model_for(2100).pulses_per_rev == 526_374
+    for p_number, a_number in ((2000, 51201), (2010, 53769), (2020, 54025), (2100, 43289),
+                               (2110, 46097), (2120, 46353)):
+        p_model, a_model = model_for(p_number), model_for(a_number)
+        lacking = {item.name for item in p_model.items} - {item.name for item in a_model.items}
+        assert lacking == {'protocol_version', 'startup_configuration', 'backup_ready'}
+        assert p_model.physics.points == a_model.physics.points
+    gripper = model_for(35074)
+    assert gripper.modes == {'current': 0, 'current_based_position': 5}
+    assert not gripper.has('drive_mode') and gripper.item('operating_mode').initial == 5
+    assert model_named('RH-P12-RN(A)') is gripper and model_named('ph54-200-s500-r') is ph54

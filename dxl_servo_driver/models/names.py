@@ -22,16 +22,9 @@ OTHER_MODELS: dict[int, tuple[str, str]] = {
     320: ('MX-106', 'an MX servo on Protocol 1.0 firmware'),
     360: ('MX-12W', 'an MX servo on Protocol 1.0 firmware'),
     350: ('XL-320', 'an X-series servo with a control table unlike the others'),
-    # The P series is the renamed PRO+; 2000 is the P-series successor of the PRO
-    # H42-20-S300-R(A) (model 51201), which is named too so either search finds it.
-    2000: ('PH42-020-S300-R',
-           'a DYNAMIXEL-P servo (formerly PRO+ H42P-020-S300-R, successor of the PRO '
-           'H42-20-S300-R)'),
-    2010: ('PH54-100-S500-R', 'a DYNAMIXEL-P servo (formerly PRO+)'),
-    2020: ('PH54-200-S500-R', 'a DYNAMIXEL-P servo (formerly PRO+)'),
-    2100: ('PM42-010-S260-R', 'a DYNAMIXEL-P servo (formerly PRO+)'),
-    2110: ('PM54-040-S250-R', 'a DYNAMIXEL-P servo (formerly PRO+)'),
-    2120: ('PM54-060-S250-R', 'a DYNAMIXEL-P servo (formerly PRO+)'),
+    # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
+    35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
+                         '35074, is supported)'),
     4000: ('YM070-210-M001', 'a DYNAMIXEL-Y servo'),
     4010: ('YM070-210-B001', 'a DYNAMIXEL-Y servo'),
     4020: ('YM070-210-R051', 'a DYNAMIXEL-Y servo'),
@@ -44,11 +37,4 @@ OTHER_MODELS: dict[int, tuple[str, str]] = {
     4150: ('YM080-230-R099', 'a DYNAMIXEL-Y servo'),
     4160: ('YM080-230-A051', 'a DYNAMIXEL-Y servo'),
     4170: ('YM080-230-A099', 'a DYNAMIXEL-Y servo'),
-    35074: ('RH-P12-RN', 'a ROBOTIS gripper'),
-    43289: ('M42-10-S260-R(A)', 'a DYNAMIXEL PRO (A) servo'),
-    46097: ('M54-40-S250-R(A)', 'a DYNAMIXEL PRO (A) servo'),
-    46353: ('M54-60-S250-R(A)', 'a DYNAMIXEL PRO (A) servo'),
-    51201: ('H42-20-S300-R(A)', 'a DYNAMIXEL PRO (A) servo'),
-    53769: ('H54-100-S500-R(A)', 'a DYNAMIXEL PRO (A) servo'),
-    54025: ('H54-200-S500-R(A)', 'a DYNAMIXEL PRO (A) servo'),
 }
