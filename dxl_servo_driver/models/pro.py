@@ -17,7 +17,7 @@ as their P counterparts' (the same firmware family; the PRO(A) pages were not co
 item). Hardware Error Status bits: the e-manual refers to Shutdown, the X's bits.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from dxl_servo_driver.models import modes, xm430
@@ -200,7 +200,11 @@ def _model(number: int, name: str, family: str, items: tuple[Item, ...],
         velocity_unit_rpm=0.01, pulses_per_rev=pulses_per_rev, position_zero_raw=0,
         pwm_full_raw=PWM_FULL, voltage_unit_v=0.1, indirect=INDIRECT_PAIRS,
         hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
-        fast_sync_read_firmware=None, eeprom_end=EEPROM_END)
+        fast_sync_read_firmware=None, eeprom_end=EEPROM_END,
+        # Profile Acceleration counts 1 rev/min^2; Goal Position in the multi-turn modes takes
+        # the whole int32; the e-manual states no position-mode limit on the Homing Offset.
+        acceleration_unit_rpm2=1.0, extended_position_limit=INT32_MAX,
+        homing_position_mode_limit=None)
 
 
 # The datasheets publish continuous (rated) torque and current, not stall figures: those
@@ -274,9 +278,11 @@ def _gripper() -> Model:
                         'Limit 29.7 rpm as the no-load speed')
     # Its encoder is a 12-bit absolute one (4,096 per turn of the drive); the SDK's type info
     # maps 740 pulses to 1.099 rad instead (about 4,231 per turn): the e-manual's is kept.
-    return _model(35074, 'RH-P12-RN(A)', 'RH-P12-RN',
-                  tuple(sorted(items.values(), key=lambda each: each.address)), 4096,
-                  GRIPPER_MODES, physics)
+    gripper = _model(35074, 'RH-P12-RN(A)', 'RH-P12-RN',
+                     tuple(sorted(items.values(), key=lambda each: each.address)), 4096,
+                     GRIPPER_MODES, physics)
+    # No multi-turn: its current-based position mode reaches the finger's travel only.
+    return replace(gripper, extended_position_limit=1150)
 
 
 GRIPPER = _gripper()

@@ -217,14 +217,20 @@ class DriverNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         try:
             self.manager.configure()
+            return self._configured()
         except ManagerError as exc:
             self.get_logger().error(str(exc))
-            self.manager.close()
-            return TransitionCallbackReturn.FAILURE
         except Interrupted:
             self.get_logger().warning('configure interrupted: stop requested')
-            self.manager.close()
-            return TransitionCallbackReturn.FAILURE
+        except Exception as exc:   # noqa: B902 (a defect: said, and the node stays up)
+            # rclpy would turn it into the error state without a word of why.
+            self.get_logger().error(f'configure failed: internal error: '
+                                    f'{type(exc).__name__}: {exc}')
+        self.manager.close()
+        return TransitionCallbackReturn.FAILURE
+
+    def _configured(self) -> TransitionCallbackReturn:
+        """Take what the servos said at configure: tables, values in use, publishers."""
         # The servos said which model they are: their conversions are known now, and the
         # values the configuration left to them are shown (ros2 param get).
         self._joints = JointTable(self.manager.joints)

@@ -13,6 +13,7 @@ from dxl_servo_driver import config as cfg
 from dxl_servo_driver.errors import Refused
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType)
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -80,9 +81,19 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
 
 
 def show_from_servos(node: Node, values: Mapping[str, Any]) -> None:
-    """Declare the values in use that the configuration left to the servos (by full name)."""
+    """
+    Declare the values in use that the configuration left to the servos (by full name).
+
+    A value outside its parameter's range (a gripper's multi-turn reach in radians, say) is
+    not shown: ros2 param get then says it is not set, and nothing else changes.
+    """
     for name, value in values.items():
-        _redeclare(node, name, value, descriptor(cfg.JOINT_PARAMS_BY_NAME[name.split('.')[-1]]))
+        try:
+            _redeclare(node, name, value,
+                       descriptor(cfg.JOINT_PARAMS_BY_NAME[name.split('.')[-1]]))
+        except InvalidParameterValueException:
+            node.get_logger().info(f'{name} in use is {value:g}, outside what the parameter '
+                                   'can show')
 
 
 def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
