@@ -453,7 +453,7 @@ class Bus:
         if not code:
             return data
         self.counters.status_errors += 1
-        text = error_text_1(code) if framer.version == 1 else ERROR_TEXT.get(code, code)
+        text = error_text_1(code) if framer.version == 1 else ERROR_TEXT.get(code, str(code))
         return StatusError(f'id {servo_id}: {what} refused: {text}', servo_id, code,
                            bool(error & framer.alert_mask))
 

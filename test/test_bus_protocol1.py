@@ -3,7 +3,7 @@
 import random
 from typing import Dict, Iterator, Tuple
 
-from adapter_faults import Faults, FaultyPort
+from adapter_faults import FaultyPort
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import (
     BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
