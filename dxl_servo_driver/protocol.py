@@ -422,10 +422,15 @@ class Framer(Protocol):
     A framer encodes instruction packets and finds whole frames in received bytes; each frame
     says its id, whether its checksum held, whether it is a status packet and, if so, its error
     byte and parameters (Frame.status). Which instructions a protocol has, and the Fast Sync
-    Read (2.0 only), stay with the callers that use them.
+    Read (2.0 only), stay with the callers that use them (by version). In Protocol 1.0 a
+    status packet has no instruction byte, so is_status only says a frame can be one: the bus
+    compares a frame with the packet it sent before it takes it for an answer.
     """
 
+    version: int                # the protocol's major version: 1 or 2
     status_overhead: int        # bytes of a status packet around its parameters
+    refusal_mask: int           # error byte bits that say the instruction was refused
+    alert_mask: int             # error byte bits that report a hardware error (not a refusal)
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -438,7 +443,10 @@ class Framer(Protocol):
 class Protocol2Framer:
     """Protocol 2.0 framing (this module's functions), as the bus's Framer."""
 
+    version = 2
     status_overhead = STATUS_OVERHEAD
+    refusal_mask = ERROR_CODE_MASK
+    alert_mask = ALERT_BIT
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""

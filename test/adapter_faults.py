@@ -12,6 +12,8 @@ adapters. Two front ends put it in front of servos:
 
 Every fault is off by default and can be changed at run time from any thread (set(), clear(),
 freeze()); a seeded random.Random makes a run reproducible. Nothing here imports rclpy.
+Replies are cut into packets by the framing of one protocol (`protocol`: 2, or 1 for Protocol
+1.0's FF FF header and one-byte length), which also shapes the noise's forged headers.
 """
 
 import collections
@@ -27,6 +29,7 @@ import time
 import tty
 from typing import Any, Callable, Optional
 
+from dxl_servo_driver import protocol1
 from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
 from dxl_servo_driver.serial_port import RawPort
 from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
@@ -44,6 +47,31 @@ READ_CHUNK = 4096
 IDLE_S = 0.5            # the proxy thread's longest sleep (a wake pipe ends it early)
 WRITE_TIMEOUT_S = 1.0   # how long the proxy waits for a full upstream device to take bytes
 HEAD = len(HEADER) + 3  # header, id and the two length bytes
+
+
+@dataclasses.dataclass(frozen=True)
+class Framing:
+    """How one protocol's packets are cut from a byte stream: by header and length field."""
+
+    header: bytes
+    head: int              # header, id and length field: the bytes before the length counts
+    length_bytes: int      # the length field's size (little endian)
+    min_length: int        # a length field below this is noise (as the servos' receiver)
+    max_length: int        # and above this
+    # Bytes a header found to be noise gives up: 1 in Protocol 1.0, where noise before a real
+    # header makes FF FF FF (the real header starts at the second FF).
+    noise_skip: int
+
+    def length(self, buffer: bytearray) -> int:
+        """Return the length field of the packet buffer starts with."""
+        field = buffer[self.head - self.length_bytes:self.head]
+        return int.from_bytes(field, 'little')
+
+
+FRAMINGS = {
+    2: Framing(HEADER, HEAD, 2, 3, MAX_PACKET_LENGTH, len(HEADER)),
+    1: Framing(protocol1.HEADER, len(protocol1.HEADER) + 2, 1, 2, protocol1.MAX_LENGTH, 1),
+}
 
 
 def _check_probability(name: str, value: float) -> None:
@@ -115,10 +143,10 @@ class FaultStats:
         return dataclasses.asdict(self)
 
 
-def _header_prefix_len(buffer: bytearray) -> int:
+def _header_prefix_len(buffer: bytearray, header: bytes = HEADER) -> int:
     """Return how many trailing bytes could be the start of a header (0..3)."""
-    for keep in (3, 2, 1):
-        if buffer.endswith(HEADER[:keep]):
+    for keep in range(len(header) - 1, 0, -1):
+        if buffer.endswith(header[:keep]):
             return keep
     return 0
 
@@ -140,7 +168,8 @@ class FaultEngine:
     """
 
     def __init__(self, faults: Optional[Faults] = None, seed: Optional[int] = 0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, protocol: int = 2) -> None:
+        self.framing = FRAMINGS[protocol]
         self.cond = threading.Condition(threading.RLock())
         self.stats = FaultStats()
         self._faults = dataclasses.replace(faults) if faults is not None else Faults()
@@ -328,32 +357,36 @@ class FaultEngine:
         """
         buffer = self._partial
         raw = bytearray()
+        framing = self.framing
+        header = framing.header
+        head = framing.head
         while buffer:
-            start = buffer.find(HEADER)
+            start = buffer.find(header)
             if start < 0:
-                keep = 0 if flush else _header_prefix_len(buffer)
+                keep = 0 if flush else _header_prefix_len(buffer, header)
                 raw += buffer[:len(buffer) - keep]
                 del buffer[:len(buffer) - keep]
                 break
             raw += buffer[:start]
             del buffer[:start]
-            if len(buffer) >= HEAD:
-                length = buffer[5] | (buffer[6] << 8)
-                if length < 3 or length > MAX_PACKET_LENGTH:  # as StreamParser: noise
-                    raw += buffer[:len(HEADER)]
-                    del buffer[:len(HEADER)]
+            if len(buffer) >= head:
+                length = framing.length(buffer)
+                # as the servos' receiver: noise
+                if length < framing.min_length or length > framing.max_length:
+                    raw += buffer[:framing.noise_skip]
+                    del buffer[:framing.noise_skip]
                     continue
-                if len(buffer) >= HEAD + length:
+                if len(buffer) >= head + length:
                     if raw:
                         self._pass(bytes(raw), now_s)
                         raw.clear()
-                    self._reply(bytes(buffer[:HEAD + length]), now_s)
-                    del buffer[:HEAD + length]
+                    self._reply(bytes(buffer[:head + length]), now_s)
+                    del buffer[:head + length]
                     continue
             if not flush:
                 break
-            raw += buffer[:len(HEADER)]
-            del buffer[:len(HEADER)]
+            raw += buffer[:framing.noise_skip]
+            del buffer[:framing.noise_skip]
         if raw:
             self._pass(bytes(raw), now_s)
 
@@ -404,12 +437,17 @@ class FaultEngine:
         """
         rng = self._random
         out = bytearray(rng.getrandbits(8) for _ in range(count))
+        framing = self.framing
+        header = framing.header
         if rng.random() < 0.5:
             if rng.random() < 0.5:
-                fragment = HEADER[:rng.randint(1, len(HEADER))]
-            else:
+                fragment = header[:rng.randint(1, len(header))]
+            elif framing.length_bytes == 2:
                 length = rng.choice((0, 2, rng.randint(3, 40), MAX_PACKET_LENGTH + 1, 0xFFFF))
-                fragment = HEADER + bytes((rng.randrange(256),)) + length.to_bytes(2, 'little')
+                fragment = header + bytes((rng.randrange(256),)) + length.to_bytes(2, 'little')
+            else:
+                length = rng.choice((0, 1, rng.randint(2, 40), framing.max_length))
+                fragment = header + bytes((rng.randrange(256), length))
             fragment = fragment[:count]
             at = rng.randint(0, count - len(fragment))
             out[at:at + len(fragment)] = fragment
@@ -454,9 +492,9 @@ class FaultyPort(_Controls):
     """
 
     def __init__(self, port: RawPort, faults: Optional[Faults] = None,
-                 seed: Optional[int] = 0) -> None:
+                 seed: Optional[int] = 0, protocol: int = 2) -> None:
         self.port = port
-        self.engine = FaultEngine(faults, seed)
+        self.engine = FaultEngine(faults, seed, protocol=protocol)
         self._cond = self.engine.cond
         # An 'instant' SimPortHandler only produces bytes inside write(), which notifies.
         self._polled = getattr(port, 'timing', None) != 'instant'
@@ -575,9 +613,9 @@ class AdapterProxy(_Controls):
     """
 
     def __init__(self, upstream_device: str, faults: Optional[Faults] = None,
-                 seed: Optional[int] = 0) -> None:
+                 seed: Optional[int] = 0, protocol: int = 2) -> None:
         self.upstream_device = upstream_device
-        self.engine = FaultEngine(faults, seed)
+        self.engine = FaultEngine(faults, seed, protocol=protocol)
         self.error: Optional[BaseException] = None  # what ended the thread early, if anything
         self.upstream_lost = False                  # the upstream device hung up
         self._path = ''

@@ -9,6 +9,11 @@ Fault injection acts per servo object (found by its current id): a dropped statu
 corrupted one has one bit flipped after the header so the receiver's CRC check fails (CRC-16
 catches every single-bit error); in a Fast Sync Read that is the servo's part.
 
+Every byte goes to two receivers, a Protocol 2.0 and a Protocol 1.0 StreamParser: each servo
+hears the packets of the protocol its Protocol Version register names (sim/protocol1.py answers
+1.0); for a 1.0 BULK_READ the replies come in the order of its records. A corrupted 1.0 status
+has its bit flipped after the header, id and length, so its checksum fails.
+
 Each servo is of one model (models.Model, the XM430 manual's 1030 unless `models` says
 otherwise): its control table, its ping answer, its hardware error bits and its physics.
 """
@@ -22,7 +27,9 @@ from typing import Callable, Iterable, Mapping
 from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
     BROADCAST_ID, encode_fast_sync_status, FAST_HEAD_SIZE, Instruction, MAX_ID, Packet,
-    StreamParser)
+    ParseEvent, StreamParser)
+from dxl_servo_driver.protocol1 import StreamParser1
+from dxl_servo_driver.sim import protocol1
 from dxl_servo_driver.sim.control import ERROR_KINDS
 from dxl_servo_driver.sim.dynamics import ServoDynamics
 from dxl_servo_driver.sim.memory import MANUAL_MODEL
@@ -70,6 +77,7 @@ class SimBus:
         self._clock = clock
         self._random = random.Random(seed)
         self._parser = StreamParser()
+        self._parser1 = StreamParser1()
         # How far behind a servo's physics may be when a packet arrives. 0: brought up to date
         # at every packet. A server with idle time (virtual_bus --timing wire) raises it and
         # calls advance_stalest() between packets, so replies are not held up by the physics.
@@ -99,7 +107,8 @@ class SimBus:
         with self.lock:
             now_s = self._clock()
             events = self._parser.feed(bytes(data), now_s)
-            if not events:
+            events1 = self._parser1.feed(bytes(data), now_s)
+            if not events and not events1:
                 return []
             self.last_packet_s = now_s
             lag_s = self.physics_lag_s
@@ -133,7 +142,30 @@ class SimBus:
                                                     len(order)))
                 else:
                     replies.extend(entry[2] for entry in answered)
+            for event in events1:
+                replies.extend(self._answer1(event, baud_bps, now_s))
             return replies
+
+    def _answer1(self, event: ParseEvent, baud_bps: int, now_s: float) -> list[Reply]:
+        """Return the Protocol 1.0 servos' replies to one 1.0 packet, in wire order."""
+        order = protocol1.reply_order(event.packet) if event.crc_ok else None
+        answered: list[tuple[int, int, Reply]] = []
+        for index, slot in enumerate(self._slots):
+            servo = slot.servo
+            if not slot.plugged or servo.baud_bps != baud_bps:
+                continue
+            servo_id = servo.servo_id
+            status = protocol1.handle(servo, event, now_s)
+            if status is None:
+                continue
+            # Past the header, id and length: the checksum fails, the packet is still framed.
+            reply = self._inject(slot, status, servo_id, 4)
+            if reply is None:
+                continue
+            rank = order.get(servo_id, _LAST) if order is not None else servo_id
+            answered.append((rank, index, reply))
+        answered.sort(key=lambda entry: (entry[0], entry[1]))
+        return [entry[2] for entry in answered]
 
     def advance_stalest(self, min_age_s: float) -> bool:
         """
@@ -150,14 +182,15 @@ class SimBus:
             stalest.servo.advance(now_s)
             return True
 
-    def _inject(self, slot: _Slot, status: bytes, servo_id: int) -> Reply | None:
+    def _inject(self, slot: _Slot, status: bytes, servo_id: int,
+                after: int = 7) -> Reply | None:
         rng = self._random
         if slot.drop_probability and rng.random() < slot.drop_probability:
             return None
         if slot.corrupt_probability and rng.random() < slot.corrupt_probability:
             corrupted = bytearray(status)
             # Past the header, id and length, so the receiver frames it and its CRC fails.
-            position = rng.randrange(7, len(corrupted))
+            position = rng.randrange(after, len(corrupted))
             corrupted[position] ^= 1 << rng.randrange(8)
             status = bytes(corrupted)
         return Reply(status, servo_id, slot.servo.return_delay_s)

@@ -1,6 +1,9 @@
 """
 One simulated servo: Protocol 2.0 instruction handling and the register side effects.
 
+A servo whose Protocol Version register is 1 hears Protocol 1.0 instead (sim/protocol1.py
+dispatches those packets to the same memory and side effects) and ignores Protocol 2.0 packets.
+
 The physics lives in dynamics.ServoDynamics; this class owns the control table (its model's:
 items, modes, bauds, and the Firmware Version it reports), time, power and the latched hardware
 errors.  Choices where the manual is silent (all documented here):
@@ -100,6 +103,8 @@ class SimServo:
         self._status_return_address = table.status_return_address
         self._error_status_address = table.error_status_address
         self._error_mask = table.error_mask
+        protocol_item = table.by_name.get('protocol_version')
+        self._protocol_address = None if protocol_item is None else protocol_item.address
         # Registers of one model moved by another's physics would be a servo that lies.
         dynamics_model = getattr(dynamics, 'model', self.model)
         if dynamics_model is not self.model:
@@ -133,6 +138,12 @@ class SimServo:
     def return_delay_s(self) -> float:
         """Return the Return Delay Time (the register times its unit, 2 us)."""
         return self.memory.raw[self._return_delay_address] * RETURN_DELAY_UNIT_S
+
+    @property
+    def protocol_version(self) -> int:
+        """Return the protocol the servo speaks now: its Protocol Version register, else 2."""
+        address = self._protocol_address
+        return 2 if address is None else self.memory.raw[address]
 
     def responsive(self, now_s: float) -> bool:
         """Return whether the servo hears packets at now_s (powered and booted)."""
@@ -223,7 +234,7 @@ class SimServo:
     # ---- packets -------------------------------------------------------------------------------
     def handle(self, event: ParseEvent, now_s: float) -> bytes | None:
         """Act on one packet heard at now_s; return the status packet to send, if any."""
-        if not self.responsive(now_s):
+        if not self.responsive(now_s) or self.protocol_version != 2:
             return None
         packet = event.packet
         my_id = self.servo_id
@@ -256,6 +267,23 @@ class SimServo:
         if instruction in _READ_INSTRUCTIONS:
             return _KIND_READ
         return _KIND_OTHER
+
+    def restart(self, now_s: float) -> None:
+        """Restart as after REBOOT: unresponsive for boot_time_s, RAM defaults, errors cleared."""
+        self._restart(now_s, boot_delay=True)
+
+    def register(self, address: int, payload: bytes) -> None:
+        """Keep a checked REG_WRITE until ACTION (a newer one replaces it)."""
+        self._registered = (address, bytes(payload))
+        self.memory.set('registered_instruction', 1)
+
+    def take_registered(self) -> tuple[int, bytes] | None:
+        """Return the REG_WRITE waiting for ACTION, and forget it (None: none waits)."""
+        registered = self._registered
+        if registered is not None:
+            self._registered = None
+            self.memory.set('registered_instruction', 0)
+        return registered
 
     def _status(self, reply_id: int, error: int, params: bytes, kind: int) -> bytes | None:
         raw = self.memory.raw

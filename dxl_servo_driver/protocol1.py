@@ -1,0 +1,264 @@
+"""
+Dynamixel Protocol 1.0 framing: checksum, packet encoding, the bus's framer and a stream parser.
+
+Instruction packet: FF FF | ID | LEN | INSTRUCTION | PARAMS... | CHECKSUM, where LEN counts the
+parameters plus 2 (instruction and checksum). A status packet has the same layout with the error
+byte where the instruction was: FF FF | ID | LEN | ERROR | PARAMS... | CHECKSUM. The checksum is
+the inverted low byte of the sum of every byte after the header (the e-manual's Protocol 1.0
+page). Addresses and lengths are one byte; ids 0..253, 0xFE is the broadcast id.
+
+Two things differ from Protocol 2.0 and shape this module:
+
+- No byte stuffing: FF FF may appear inside the parameters (a data word 0xFFFF). The length field
+  alone says where a packet ends; a header found inside a packet that checks is data. Only when
+  the checksum fails does the bus's scan (resync) look for a header inside the bad packet again:
+  noise may have forged a header whose length swallowed a real packet.
+- A status packet has no instruction byte: a frame cannot tell whether it is a servo's answer or
+  an instruction (our own request coming back on an echoing adapter). Frame1.is_status says only
+  whether it can be a status (bit 7 of an error byte is never set); the bus tells its echo by
+  comparing the frame with the packet it sent before it takes any frame for an answer.
+"""
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Dict
+
+from dxl_servo_driver.protocol import (
+    DEFAULT_INTER_BYTE_TIMEOUT_S, Frame, Packet, ParseEvent)
+
+HEADER = b'\xff\xff'
+BROADCAST_ID = 0xFE
+MAX_ID = 253
+MAX_ADDRESS = 255
+# The length field is one byte and counts the parameters plus 2.
+MAX_LENGTH = 255
+MAX_PARAMS = MAX_LENGTH - 2
+# Sizes on the wire.
+STATUS_OVERHEAD = 6         # header 2, id, length, error, checksum
+INSTRUCTION_OVERHEAD = 6    # header 2, id, length, instruction, checksum
+READ_PACKET_SIZE = INSTRUCTION_OVERHEAD + 2   # READ: address, length
+
+
+class Instruction1(IntEnum):
+    """Protocol 1.0 instruction codes."""
+
+    PING = 0x01
+    READ = 0x02
+    WRITE = 0x03
+    REG_WRITE = 0x04
+    ACTION = 0x05
+    RESET = 0x06
+    REBOOT = 0x08
+    SYNC_WRITE = 0x83
+    BULK_READ = 0x92
+
+
+class ErrorBit(IntEnum):
+    """The bits of a Protocol 1.0 status packet's error byte (bit 7 is unused)."""
+
+    INPUT_VOLTAGE = 0x01
+    ANGLE_LIMIT = 0x02
+    OVERHEATING = 0x04
+    RANGE = 0x08
+    CHECKSUM = 0x10
+    OVERLOAD = 0x20
+    INSTRUCTION = 0x40
+
+
+ERROR_BIT_NAMES: Dict[int, str] = {
+    ErrorBit.INPUT_VOLTAGE: 'input voltage error (outside the voltage limits)',
+    ErrorBit.ANGLE_LIMIT: 'angle limit error (goal position outside the angle limits)',
+    ErrorBit.OVERHEATING: 'overheating error (above the temperature limit)',
+    ErrorBit.RANGE: 'range error (a value or address outside its range)',
+    ErrorBit.CHECKSUM: 'checksum error (the servo received a corrupted packet)',
+    ErrorBit.OVERLOAD: 'overload error (the load exceeds the torque limit)',
+    ErrorBit.INSTRUCTION: 'instruction error (unknown instruction, or ACTION without REG_WRITE)',
+}
+# The bits that say this instruction was refused, and those that report the servo's hardware
+# state (the alert of Protocol 2.0: the instruction itself was carried out).
+REFUSAL_MASK = (ErrorBit.ANGLE_LIMIT | ErrorBit.RANGE | ErrorBit.CHECKSUM
+                | ErrorBit.INSTRUCTION)
+ALERT_MASK = ErrorBit.INPUT_VOLTAGE | ErrorBit.OVERHEATING | ErrorBit.OVERLOAD
+_UNUSED_BIT = 0x80
+
+
+def error_text(error: int) -> str:
+    """Return the names of the bits set in an error byte, joined (empty for none)."""
+    return ', '.join(name for bit, name in ERROR_BIT_NAMES.items() if error & bit)
+
+
+def checksum(body: bytes | bytearray) -> int:
+    """Return the checksum of the bytes between the header and the checksum itself."""
+    return ~sum(body) & 0xFF
+
+
+def _encode(servo_id: int, first: int, params: bytes) -> bytes:
+    if len(params) > MAX_PARAMS:
+        raise ValueError(f'{len(params)} parameters: a Protocol 1.0 packet holds at most '
+                         f'{MAX_PARAMS}')
+    body = bytes((servo_id & 0xFF, len(params) + 2, first & 0xFF)) + bytes(params)
+    return HEADER + body + bytes((checksum(body),))
+
+
+def encode_instruction(servo_id: int, instruction: int, params: bytes = b'') -> bytes:
+    """Return a whole instruction packet as it goes on the wire."""
+    return _encode(servo_id, instruction, params)
+
+
+def encode_status(servo_id: int, error: int, params: bytes = b'') -> bytes:
+    """Return a whole status packet as it goes on the wire."""
+    return _encode(servo_id, error, params)
+
+
+@dataclass(frozen=True)
+class Frame1(Frame):
+    """
+    One whole Protocol 1.0 packet found in a buffer: an instruction or a status, undecided.
+
+    instruction holds the byte after the length field: the instruction of an instruction
+    packet, the error byte of a status packet. The caller decides which the frame is.
+    """
+
+    def packet(self) -> Packet:
+        """Decode the frame as an instruction packet, as a servo's receiver sees it."""
+        return Packet(self.servo_id, self.instruction, self.raw[5:-1])
+
+    @property
+    def is_status(self) -> bool:
+        """Return True when the frame can be a status packet (its error byte's bit 7 clear)."""
+        return not self.instruction & _UNUSED_BIT
+
+    def status(self) -> tuple[int, bytes]:
+        """Return the frame read as a status packet: (error byte, parameters)."""
+        return self.instruction, self.raw[5:-1]
+
+
+def _partial_header_start(buffer: bytes | bytearray, pos: int) -> int:
+    # A trailing FF may be the first byte of a header still arriving.
+    end = len(buffer)
+    if end - 1 >= pos and buffer[end - 1] == 0xFF:
+        return end - 1
+    return end
+
+
+def scan_frames(buffer: bytes | bytearray, pos: int = 0, max_length: int = MAX_LENGTH,
+                final: bool = False, resync: bool = True) -> tuple[list[Frame], int]:
+    """
+    Return the whole Protocol 1.0 packets in buffer from pos on, and where unconsumed bytes begin.
+
+    Bytes before a header are noise and skipped. A length field below 2 or above max_length
+    cannot be a packet of ours: the header is taken as noise and the scan goes on at the next
+    byte. A run of FF before the id is header padding: the packet starts at its last two FFs
+    (an id is never FF). A packet whose checksum fails is reported (crc_ok False); with resync
+    the scan then looks for a header inside it, without it the whole claimed length is skipped
+    (a servo's receiver). A packet that checks is taken whole, FF FF in its parameters included:
+    there is no stuffing, the length field decides. The returned offset is where an incomplete
+    packet (or a trailing FF) starts, or len(buffer); with final an incomplete packet is noise.
+    """
+    frames: list[Frame] = []
+    end = len(buffer)
+    while True:
+        start = buffer.find(HEADER, pos)
+        if start < 0:
+            return frames, (end if final else _partial_header_start(buffer, pos))
+        # FF FF FF ...: the id cannot be FF, so the header is the last two of the run.
+        while start + 2 < end and buffer[start + 2] == 0xFF:
+            start += 1
+        if start + 4 > end:
+            if final:
+                pos = start + 1
+                continue
+            return frames, start
+        length = buffer[start + 3]
+        if length < 2 or length > max_length:
+            pos = start + 1
+            continue
+        stop = start + 4 + length
+        if stop > end:
+            if final:
+                pos = start + 1
+                continue
+            return frames, start
+        raw = bytes(buffer[start:stop])
+        crc_ok = checksum(raw[2:-1]) == raw[-1]
+        frames.append(Frame1(start, stop, raw[2], raw[4], crc_ok, raw))
+        pos = stop if crc_ok or not resync else start + 1
+
+
+def decode_packet(data: bytes) -> Packet:
+    """
+    Decode exactly one whole packet as an instruction; ValueError when it is not a valid one.
+
+    A status packet decodes too: its error byte is then the Packet's instruction (and error).
+    """
+    data = bytes(data)
+    if len(data) < 6 or not data.startswith(HEADER):
+        raise ValueError('not a Protocol 1.0 packet (short or no header)')
+    length = data[3]
+    if length < 2 or len(data) != 4 + length:
+        raise ValueError(f'length field {length} does not match {len(data)} bytes')
+    if checksum(data[2:-1]) != data[-1]:
+        raise ValueError('checksum mismatch')
+    return Packet(data[2], data[4], data[5:-1], data[4])
+
+
+class StreamParser1:
+    """
+    Incremental Protocol 1.0 parser (the simulated servos' receiver), as protocol.StreamParser.
+
+    feed() returns the whole packets found, framed by scan_frames() without resync: garbage
+    before a header is skipped, a length below 2 is noise, a packet whose checksum fails is
+    reported with crc_ok False and skipped whole. A partial packet whose next byte comes later
+    than inter_byte_timeout_s is discarded, as the servo's receiver does.
+    """
+
+    def __init__(self, inter_byte_timeout_s: float = DEFAULT_INTER_BYTE_TIMEOUT_S) -> None:
+        self.inter_byte_timeout_s = inter_byte_timeout_s
+        self._buffer = bytearray()
+        self._last_byte_s: float | None = None
+
+    def reset(self) -> None:
+        """Forget any partial packet."""
+        self._buffer.clear()
+        self._last_byte_s = None
+
+    @property
+    def pending(self) -> int:
+        """Return how many bytes wait for the rest of their packet."""
+        return len(self._buffer)
+
+    def feed(self, chunk: bytes, now_s: float) -> list[ParseEvent]:
+        """Add bytes received at now_s; return the packets completed by them."""
+        buffer = self._buffer
+        if (buffer and self._last_byte_s is not None
+                and now_s - self._last_byte_s > self.inter_byte_timeout_s):
+            buffer.clear()
+        if chunk:
+            buffer += chunk
+            self._last_byte_s = now_s
+        if not buffer:
+            return []
+        frames, rest = scan_frames(buffer, resync=False)
+        del buffer[:rest]
+        return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]
+
+
+class Protocol1Framer:
+    """Protocol 1.0 framing (this module's functions), as the bus's Framer."""
+
+    version = 1
+    status_overhead = STATUS_OVERHEAD
+    refusal_mask = int(REFUSAL_MASK)
+    alert_mask = int(ALERT_MASK)
+
+    def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
+        """Return a whole instruction packet as it goes on the wire."""
+        return encode_instruction(servo_id, instruction, params)
+
+    def scan(self, buffer: bytes | bytearray, pos: int, max_length: int,
+             final: bool) -> tuple[list[Frame], int]:
+        """Return the whole frames in buffer from pos on (scan_frames with resync)."""
+        return scan_frames(buffer, pos, max_length=min(max_length, MAX_LENGTH), final=final)
+
+
+PROTOCOL_1 = Protocol1Framer()
