@@ -40,12 +40,15 @@ reach into each other.
 """
 
 import collections
+import contextlib
 from dataclasses import dataclass, field
+import functools
 import struct
 import threading
 import time
 from typing import (
-    Callable, Deque, Dict, Iterable, List, Optional, Sequence, Set, Tuple, Union)
+    Any, Callable, cast, Deque, Dict, Iterable, Iterator, List, Optional, Sequence, Set, Tuple,
+    TypeVar, Union)
 
 from dxl_servo_driver.errors import (
     BadRequest, CommError, CommTimeout, CorruptReply, PortError, StatusError)
@@ -224,7 +227,8 @@ class SyncRead:
             raise RuntimeError('a sync read collected or aborted already')
         self.done = True
         try:
-            return self._bus._collect_sync(self)
+            with self._bus.speaking(PROTOCOL_2):   # sync reads are Protocol 2.0's
+                return self._bus._collect_sync(self)
         finally:
             self._bus.lock.release()
 
@@ -241,7 +245,7 @@ class SyncRead:
         self.done = True
         bus = self._bus
         bus.mark_dirty()
-        chunk = bus.framer.status_overhead * len(self.ids) + 4096
+        chunk = PROTOCOL_2.status_overhead * len(self.ids) + 4096
         try:
             while time.monotonic() < self.deadline_s:
                 dropped = bus._read(chunk, self.deadline_s, to_deadline=True)
@@ -252,9 +256,25 @@ class SyncRead:
             bus.lock.release()
 
 
+Method = TypeVar('Method', bound=Callable[..., Any])
+
+
+def _to_servo(method: Method) -> Method:
+    """Run a transaction with one servo in that servo's protocol (Bus.speak)."""
+    @functools.wraps(method)
+    def speaking(bus: 'Bus', servo_id: int, *args: Any, **kwargs: Any) -> Any:
+        with bus.speaking(bus.framer_for(servo_id)):
+            return method(bus, servo_id, *args, **kwargs)
+    return cast(Method, speaking)
+
+
 class Bus:
     """
     One bus of servos on one port. Thread-safe: one transaction at a time.
+
+    A bus may carry both protocols: the one given is its default (broadcasts, and every id not
+    told otherwise); speak() says an id answers in the other. The framer in force (`framer`)
+    is switched only under the bus lock, for one transaction.
 
     The bus never retries on its own; the caller decides what a failure means.
     """
@@ -267,6 +287,8 @@ class Bus:
         # The largest Return Delay Time expected on this bus (the factory default is 500 us).
         self.return_delay_s = return_delay_s
         self.framer = framer
+        self.default_framer = framer
+        self._framers: Dict[int, Framer] = {}   # ids that speak another protocol
         self.lock = threading.RLock()
         self.counters = Counters()
         self.echo = False             # learned: the adapter echoes what we send
@@ -276,6 +298,30 @@ class Bus:
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
         self._read_tag = 0
         self._recent: Deque[bytes] = collections.deque(maxlen=RECENT_PACKETS)
+
+    # protocols ----------------------------------------------------------------------------
+    def speak(self, servo_id: int, framer: Framer) -> None:
+        """Say that servo_id answers in this framer's protocol (its transactions use it)."""
+        with self.lock:
+            if framer is self.default_framer:
+                self._framers.pop(servo_id, None)
+            else:
+                self._framers[servo_id] = framer
+
+    def framer_for(self, servo_id: int) -> Framer:
+        """Return the framer of the protocol servo_id speaks."""
+        return self._framers.get(servo_id, self.default_framer)
+
+    @contextlib.contextmanager
+    def speaking(self, framer: Optional[Framer]) -> Iterator[None]:
+        """Hold the bus with this framer in force (None: the default), restored after."""
+        with self.lock:
+            before = self.framer
+            self.framer = self.default_framer if framer is None else framer
+            try:
+                yield
+            finally:
+                self.framer = before
 
     # timing and state --------------------------------------------------------------------
     def byte_time_s(self, n_bytes: int) -> float:
@@ -462,6 +508,7 @@ class Bus:
         return bool(error & self.framer.alert_mask)
 
     # one-off transactions ------------------------------------------------------------------
+    @_to_servo
     def transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
                  what: str) -> bytes:
         """
@@ -522,6 +569,7 @@ class Bus:
         if self.framer.version == 1:
             raise BadRequest(f'{what} does not exist in Protocol 1.0 ({instead})')
 
+    @_to_servo
     def ping(self, servo_id: int, probe: bool = False) -> int:
         """
         Return the model number of the servo; raise when it does not answer.
@@ -556,6 +604,7 @@ class Bus:
                 for servo_id, (_, error, data) in collected.answers.items()
                 if len(data) == PING_REPLY_PARAMS}
 
+    @_to_servo
     def read(self, servo_id: int, address: int, length: int, confirm: bool = True) -> bytes:
         """
         Return length bytes of the servo's control table from address.
@@ -581,6 +630,7 @@ class Bus:
         raise CorruptReply(f'id {servo_id}: read of {length} bytes at {address}: replies '
                            'disagree (late replies on the bus?)', servo_id)
 
+    @_to_servo
     def read_fresh(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
         """Return (data, time the request went out) of one length-tagged read (see read())."""
         self._read_tag = (self._read_tag + 1) % READ_TAGS
@@ -600,6 +650,7 @@ class Bus:
                                       None)
         return data[before:before + length], sent_s
 
+    @_to_servo
     def read_dated(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
         """
         Return (data, time the request went out) of a read whose data the caller dates itself.
@@ -610,6 +661,7 @@ class Bus:
         return self._transact(servo_id, Instruction.READ, self._address_length(address, length),
                               length, f'read of {length} bytes at {address}', False)
 
+    @_to_servo
     def write(self, servo_id: int, address: int, data: bytes) -> None:
         """Write bytes to the servo's control table at address, and check the status."""
         if self.framer.version == 1:
@@ -629,16 +681,19 @@ class Bus:
         """Write one control-table item."""
         self.write(servo_id, item.address, item.encode(value))
 
+    @_to_servo
     def reboot(self, servo_id: int) -> None:
         """Send REBOOT and check the servo acknowledged it."""
         # The status of a REBOOT may carry the alert bit of the error being cleared.
         self.transact(servo_id, Instruction.REBOOT, b'', 0, 'reboot')
 
+    @_to_servo
     def clear_multi_turn(self, servo_id: int) -> None:
         """Send CLEAR: present position back within one turn (the servo must be still)."""
         self._refuse_on_1('CLEAR', 'no multi-turn clear')
         self.transact(servo_id, Instruction.CLEAR, CLEAR_MULTI_TURN, 0, 'clear multi-turn')
 
+    @_to_servo
     def factory_reset(self, servo_id: int, option: int) -> None:
         """Send FACTORY_RESET with option 0xFF, 0x01 or 0x02 (1.0: RESET, 0xFF only)."""
         if self.framer.version == 1:
@@ -687,14 +742,17 @@ class Bus:
         then still on its way), and this puts request and answer back in step. Meanwhile the
         caller may do other work (publish the previous cycle) while the servos answer.
         """
-        self._refuse_on_1('fast sync read' if fast else 'sync read', 'use bulk_read')
         id_tuple = tuple(ids)
-        request = Request(self._sync_read_packet(address, length, id_tuple, fast), id_tuple,
-                          length)
-        expected = self._sync_reply_size(length, len(id_tuple), fast)
+        if any(self.framer_for(servo_id).version == 1 for servo_id in id_tuple):
+            raise BadRequest(f'{"fast sync read" if fast else "sync read"} does not exist in '
+                             'Protocol 1.0 (use bulk_read)')
         self.lock.acquire()
         try:
-            sent_s, written_s = self._send(request.packet)
+            with self.speaking(PROTOCOL_2):
+                request = Request(self._sync_read_packet(address, length, id_tuple, fast),
+                                  id_tuple, length)
+                expected = self._sync_reply_size(length, len(id_tuple), fast)
+                sent_s, written_s = self._send(request.packet)
         except BaseException:
             self.lock.release()
             raise
@@ -860,7 +918,8 @@ class Bus:
             results[servo_id] = self._answer(servo_id, error, data, 'fast sync read')
         return SyncResult(results, clean, pending.sent_s, alerts)
 
-    def bulk_read(self, requests: Sequence[Tuple[int, int, int]]) -> SyncResult:
+    def bulk_read(self, requests: Sequence[Tuple[int, int, int]],
+                  framer: Optional[Framer] = None) -> SyncResult:
         """
         Read (id, address, length) of several servos with one BULK_READ; hold the bus meanwhile.
 
@@ -870,6 +929,10 @@ class Bus:
         CommError saying why there is none. When the bus is suspicious the replies are read to
         the deadline and each id's last answer wins.
         """
+        with self.speaking(framer):
+            return self._bulk_read(requests)
+
+    def _bulk_read(self, requests: Sequence[Tuple[int, int, int]]) -> SyncResult:
         records = [(int(servo_id), int(address), int(length))
                    for servo_id, address, length in requests]
         ids = tuple(servo_id for servo_id, _, _ in records)
@@ -911,8 +974,13 @@ class Bus:
                 self._echo_missing()
         return result
 
-    def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
+    def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]],
+                   framer: Optional[Framer] = None) -> int:
         """Write length bytes at address on several servos with one SYNC_WRITE; return bytes."""
+        with self.speaking(framer):
+            return self._sync_write(address, length, data)
+
+    def _sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
         params = bytearray(self._address_length(address, length))
         for servo_id, value in data:
             if len(value) != length:
