@@ -59,9 +59,11 @@ from dxl_servo_driver.protocol import (
     parse_fast_sync_status, PROTOCOL_2)
 from dxl_servo_driver.protocol1 import (
     error_text as error_text_1, Instruction1, MAX_ADDRESS as MAX_ADDRESS_1,
-    MAX_PARAMS as MAX_PARAMS_1)
+    MAX_PARAMS as MAX_PARAMS_1, PROTOCOL_1)
 from dxl_servo_driver.serial_port import RawPort
 
+# The framer of each protocol version, as configurations name them.
+FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter.
 DEADLINE_SLACK_S = 0.002
 # One-off reads differ in length over this many consecutive requests (see Bus.read).
@@ -651,15 +653,17 @@ class Bus:
         return data[before:before + length], sent_s
 
     @_to_servo
-    def read_dated(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
+    def read_dated(self, servo_id: int, address: int, length: int,
+                   linger: Optional[bool] = False) -> Tuple[bytes, float]:
         """
         Return (data, time the request went out) of a read whose data the caller dates itself.
 
         For the state block's tagged reads (the Realtime Tick tells a late reply): no reading
-        on to the deadline when the bus is suspicious.
+        on to the deadline when the bus is suspicious (linger None: then it does, for a sample
+        that carries no tick).
         """
         return self._transact(servo_id, Instruction.READ, self._address_length(address, length),
-                              length, f'read of {length} bytes at {address}', False)
+                              length, f'read of {length} bytes at {address}', linger)
 
     @_to_servo
     def write(self, servo_id: int, address: int, data: bytes) -> None:

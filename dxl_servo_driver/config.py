@@ -61,7 +61,9 @@ class ParamSpec:
     noun: str = ''             # what an error calls a value of it ('unknown <noun> ...')
 
 
-BAUDS = tuple(sorted(xm430.BAUD_RATES.values()))
+# Every baud some supported model takes (configure refuses one the servo's model lacks).
+BAUDS = tuple(sorted({bps for model in models.ALL_MODELS for bps in model.bauds.values()}))
+PROTOCOLS = (1.0, 2.0)
 MISSING_SERVO_POLICIES = ('refuse', 'skip')
 READ_MODES = ('sync', 'fast_sync', 'auto')
 WRITE_MODES = ('indirect', 'per_register')
@@ -72,6 +74,10 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'in-process simulated servo per joint.'),
     ParamSpec('baud_rate', int, 57600, 'Baud rate of the bus (every servo must use it).',
               'bit/s', choices=BAUDS),
+    ParamSpec('protocol', float, 2.0,
+              'DYNAMIXEL protocol of the servos on the bus; a joint may speak the other one '
+              '(`<joint>.protocol`): each group is read its own way in every cycle.',
+              choices=PROTOCOLS),
     ParamSpec('loop_rate', float, 100.0,
               'Cycles per second: one packed read of every servo, publish, pending goals '
               'written. Above what the bus can carry, the node runs as fast as the bus allows.',
@@ -154,6 +160,10 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('operating_mode', str, 'position',
               "Operating mode at start (the XM430 manual's modes 0, 1, 3, 4, 5, 16).",
               choices=modes.NAMES, noun='operating mode'),
+    ParamSpec('protocol', float, None,
+              "The protocol this joint's servo speaks, when not the bus's. Unset: the bus's, "
+              'or 1.0 when `model` names a Protocol 1.0 model (AX, RX, EX, MX on 1.0 firmware).',
+              choices=PROTOCOLS, shown="the bus's"),
     ParamSpec('model', str, '',
               'The model the servo must be (a name such as XL430-W250, or its number); another '
               'is refused at configure. Empty: any supported model.', shown='(any supported)'),
@@ -244,6 +254,8 @@ class JointConfig:
     secondary_tolerance: float = 0.1
     # Set on the secondary's own configuration: the joint it belongs to.
     secondary_of: str = ''
+    # The protocol its servo speaks (resolved: the joint's, else its model's, else the bus's).
+    protocol: float = 2.0
 
     def secondary(self) -> 'JointConfig':
         """Return the configuration of the joint's second servo (secondary_id must be set)."""
@@ -265,6 +277,7 @@ class DriverConfig:
 
     port: str
     baud_rate: int
+    protocol: float
     loop_rate: float
     state_rate: float
     torque_on_start: bool
@@ -365,7 +378,7 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
     joints = []
     ids: Dict[int, str] = {}
     for name in joint_names:
-        joint = _joint(params, name)
+        joint = _with_protocol(_joint(params, name), params, values['protocol'])
         for key, servo_id in (('id', joint.servo_id), ('secondary_id', joint.secondary_id)):
             if servo_id is None:
                 continue
@@ -448,6 +461,31 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
     return joint
+
+
+def _with_protocol(joint: JointConfig, params: Mapping[str, Any],
+                   bus_protocol: float) -> JointConfig:
+    """Return the joint with the protocol its servo speaks; ConfigError if its model cannot."""
+    key = f'{joint.name}.protocol'
+    given: Optional[float] = _joint_value(params, joint.name, 'protocol')
+    model = joint.model
+    protocol = given if given is not None else (
+        1.0 if model is not None and model.protocol == 1.0 else bus_protocol)
+    if model is not None and model.protocol == 1.0 and protocol != 1.0:
+        raise ConfigError(key if given is not None else 'protocol',
+                          f'{model.name} speaks Protocol 1.0 only (joint {joint.name!r})')
+    if model is not None and protocol == 1.0 and model.protocol != 1.0 \
+            and not model.has('protocol_version'):
+        raise ConfigError(key if given is not None else 'protocol',
+                          f'{model.name} speaks Protocol 2.0 only (joint {joint.name!r})')
+    if protocol == 1.0:
+        for register, _ in joint.registers:
+            table = model or models.model_for(xm430.MODEL_NUMBER)
+            if table.has(register) and table.item(register).address > 0xFF:
+                raise ConfigError(f'{joint.name}.registers.{register}',
+                                  f'address {table.item(register).address} is beyond the '
+                                  'reach of Protocol 1.0 (one-byte addresses)')
+    return dataclasses.replace(joint, protocol=protocol)
 
 
 def _secondary(params: Mapping[str, Any], name: str) -> Tuple[Any, ...]:

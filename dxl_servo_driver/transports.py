@@ -96,7 +96,8 @@ def _sim(config: DriverConfig) -> Transport:
     ids = [joint.servo_id for joint in servos]
     chosen = {joint.servo_id: joint.model for joint in servos if joint.model is not None}
     simulator = sim_bus.SimBus(ids, models=chosen) if chosen else sim_bus.SimBus(ids)
-    setup.configure_servos(simulator, config.baud_rate, None)
+    setup.configure_servos(simulator, config.baud_rate, None,
+                           {joint.servo_id: joint.protocol for joint in servos})
     return SimTransport(
         simulator, lambda: sim_port.SimPortHandler(simulator, 'sim', config.baud_rate))
 

@@ -16,14 +16,23 @@ import pytest
 
 # joint name -> model number: one of each family (and both MX(2.0) tables: with and without
 # current sensing).
-MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321}
-JOINTS = {name: {'id': index, 'model': number, 'operating_mode': 'velocity'}
+MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321, 'ph54': 2020, 'h42a': 51201,
+                          'gripper': 35074, 'x_on_1': 1020}
+# Joints whose servo speaks Protocol 1.0 (an X servo switched by its Protocol Version).
+PROTOCOLS = {'x_on_1': 1.0}
+# Each joint rests in velocity mode, or current mode where the model has no velocity mode.
+HOME = {name: 'velocity' if 'velocity' in model_for(number).modes else 'current'
+        for name, number in MODELS.items()}
+JOINTS = {name: {'id': index, 'model': number, 'operating_mode': HOME[name],
+                 'protocol': PROTOCOLS.get(name, 2.0)}
           for index, (name, number) in enumerate(MODELS.items(), start=1)}
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
 # A goal per mode in SI, modest for every model.
 GOALS = {'position': ('position', 0.4), 'extended_position': ('position', 7.0),
          'current_based_position': ('position', -0.3), 'velocity': ('velocity', 1.2),
          'current': ('current', 0.15), 'pwm': ('pwm', -0.2)}
+# The gripper's finger drive travels 0 (open) .. 1,150 pulses of 4,096 a turn: 0..1.76 rad.
+GRIPPER_GOALS = {'current_based_position': ('position', 0.5)}
 
 
 @pytest.fixture(scope='module')
@@ -52,7 +61,7 @@ def test_every_mode_takes_goals_in_si_written_in_the_model_s_unit(
         response = h.call('set_operating_mode', name=[name], mode=mode)
         assert response.success, (name, mode, response.message)
         assert h.reg(IDS[name], table.mode_register) == table.modes[mode]
-        kind, value = GOALS[mode]
+        kind, value = (GRIPPER_GOALS if name == 'gripper' else GOALS).get(mode, GOALS[mode])
         response = h.call(f'set_{kind}', name=[name], value=[value])
         assert response.success, (name, mode, response.message)
         assert h.node is not None
@@ -64,19 +73,22 @@ def test_every_mode_takes_goals_in_si_written_in_the_model_s_unit(
     if 'current' not in table.modes:
         response = h.call('set_operating_mode', name=[name], mode='current')
         assert not response.success and 'has no current mode' in response.message
-    assert h.call('set_operating_mode', name=[name], mode='velocity').success
+    assert h.call('set_operating_mode', name=[name], mode=HOME[name]).success
 
 
 def test_state_is_published_in_si(h: NodeHarness) -> None:
-    names = list(MODELS)
+    names = [name for name in MODELS if HOME[name] == 'velocity']
+    everyone = list(MODELS)
     for name in names:
         assert h.call('set_operating_mode', name=[name], mode='velocity').success
     assert h.call('set_velocity', name=names, value=[1.0] * len(names)).success
     msg = h.joint_states.wait(
-        lambda m: m.name == names and all(abs(v - 1.0) < 0.1 for v in m.velocity),
+        lambda m: m.name == everyone
+        and all(abs(m.velocity[everyone.index(n)] - 1.0) < 0.1 for n in names),
         timeout_s=15.0)
     assert h.node is not None
-    for index, name in enumerate(names):
+    for name in names:
+        index = everyone.index(name)
         servo = h.node.manager.servos[name]
         table = model_for(MODELS[name])
         raw = h.reg(IDS[name], 'present_velocity')

@@ -2,7 +2,14 @@
 The cycle on the bus: one packed state read of every servo, one sync write per goal register.
 
 The read is a SYNC_READ or, with read_mode fast_sync (or auto, when every servo's firmware has
-it), a FAST_SYNC_READ: one status packet for all servos instead of one each.
+it), a FAST_SYNC_READ: one status packet for all servos instead of one each. Servos on Protocol
+1.0 (no sync read there) are read after it by one BULK_READ where every one of their models
+has it, else one READ each; a 1.0-only bus reads them first and does not pipeline. A sample
+without a Realtime Tick (the older tables) is tagged instead: its read starts up to
+READ_TAGS - 1 bytes early, a different count each cycle, so a late reply of an earlier cycle
+has another length and is refused (the bus reads on to the deadline whenever it is suspicious,
+so two answers from one id are never taken; what is left is a late copy of the same length
+standing in for a lost answer: one chance in READ_TAGS).
 
 The read is dated so a late reply is never published as current, retried per servo within
 the cycle's budget, and watched for servos that restarted on their own (their indirect map is
@@ -14,10 +21,10 @@ or invented value.
 from dataclasses import dataclass
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional, Tuple, TypeVar
+from typing import Any, Callable, Dict, List, Optional, Tuple, TypeVar, Union
 
 from dxl_servo_driver import state_block
-from dxl_servo_driver.bus import SyncRead, SyncResult
+from dxl_servo_driver.bus import FRAMERS, READ_TAGS, SyncRead, SyncResult
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.goals import Goals, Pending
 from dxl_servo_driver.driver.servo import (
@@ -32,7 +39,22 @@ SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
 _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
-SyncWrite = Tuple[int, int, List[Tuple[int, bytes]]]   # address, length, (id, data)
+SyncWrite = Tuple[float, int, int, List[Tuple[int, bytes]]]   # protocol, address, length, data
+
+
+@dataclass(eq=False)
+class _Ended:
+    """A cycle read that ended as it began (a 1.0-only bus has no read to pipeline)."""
+
+    result: SyncResult
+    fast: bool = False
+
+    def collect(self) -> SyncResult:
+        """Return the result (the read is over)."""
+        return self.result
+
+    def abort(self) -> None:
+        """Nothing is on the wire."""
 
 
 @dataclass(eq=False)
@@ -47,7 +69,7 @@ class ReadInFlight:
     """
 
     _lock: threading.RLock
-    pending: SyncRead
+    pending: Union[SyncRead, _Ended]
     stamp: float
     full: bool
     length: int
@@ -55,7 +77,7 @@ class ReadInFlight:
 
     @classmethod
     def start(cls, lock: threading.RLock,
-              begin: Callable[[], Optional[Tuple[SyncRead, float, bool, int]]]
+              begin: Callable[[], Optional[Tuple[Union[SyncRead, _Ended], float, bool, int]]]
               ) -> Optional['ReadInFlight']:
         """Take the lock and begin(); None (the lock released) when begin() read nothing."""
         lock.acquire()
@@ -121,6 +143,10 @@ class Cycle:
         self._reading: Optional[ReadInFlight] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
         self._groups: List[Tuple[state_block.StateBlock, List[int]]] = []
+        # The servos on Protocol 1.0, read after the sync reads; the tag of their next read.
+        self._group_1: List[Servo] = []
+        self._bulk_1 = False
+        self._tag = 0
         # Fast Sync Read: in use now; given up for good (read_mode auto) after fast reads in a
         # row that brought nothing back, counted here.
         self.fast = False
@@ -145,15 +171,19 @@ class Cycle:
             if not servo.block.direct and servo.block.has_tick
             and servo.block.tagged_struct.format == _TAGGED.format)
         groups: Dict[Tuple[int, int], Tuple[state_block.StateBlock, List[int]]] = {}
+        self._group_1 = [servo for servo, _ in self._ids if servo.joint.protocol == 1.0]
+        self._bulk_1 = all(servo.model.bulk_read for servo in self._group_1)
         for servo, servo_id in self._ids:
+            if servo.joint.protocol == 1.0:
+                continue
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
         self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
         mode = self._ctx.config.read_mode
-        self.fast = bool(self._ids) and (mode == 'fast_sync' or (
+        self.fast = bool(self._groups) and (mode == 'fast_sync' or (
             mode == 'auto' and not self.fast_given_up
             and all(servo.model.has_fast_sync_read(servo.firmware_version)
-                    for servo, _ in self._ids)))
+                    for servo, _ in self._ids if servo.joint.protocol != 1.0)))
 
     # the read -----------------------------------------------------------------------------
     def begin_read(self, full: Optional[bool] = None) -> bool:
@@ -167,9 +197,10 @@ class Cycle:
         self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full))
         return self._reading is not None
 
-    def _begin(self, full: Optional[bool]) -> Optional[Tuple[SyncRead, float, bool, int]]:
+    def _begin(self, full: Optional[bool]
+               ) -> Optional[Tuple[Union[SyncRead, _Ended], float, bool, int]]:
         bus = self._link.io()
-        if not self._groups:
+        if not self._groups and not self._group_1:
             return None
         stamp = self._clock()
         if full is None:
@@ -179,11 +210,53 @@ class Cycle:
         # over an old reply late (in the place of one it lost) is caught by nothing else. The
         # whole block (health too) every health_period_s.
         length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
+        if not self._groups:
+            return _Ended(self._read_1(length)), stamp, full, length
         block, ids = self._groups[0]
         pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
                                       self.fast, self._linger_next)
         self._linger_next = False
         return pending, stamp, full, length
+
+    def _read_1(self, length: int) -> SyncResult:
+        """
+        Read the Protocol 1.0 servos: one BULK_READ, or one READ each where a model lacks it.
+
+        A block without a tick is read tagged (the module docstring): from `tag` bytes before
+        it, as far as the table starts, and the tag's bytes are cut off again here.
+        """
+        bus = self._link.io()
+        self._tag = (self._tag + 1) % READ_TAGS
+        records = []
+        cut: Dict[int, Tuple[int, int]] = {}
+        for servo in self._group_1:
+            block = servo.block
+            size = _group_length(block, length)
+            lead = 0 if block.has_tick else min(self._tag, block.read_address)
+            records.append((servo.servo_id, block.read_address - lead, size + lead))
+            cut[servo.servo_id] = (lead, size)
+        if self._bulk_1:
+            result = bus.bulk_read(records, FRAMERS[1.0])
+        else:
+            data: Dict[int, Union[bytes, CommError]] = {}
+            dated: Dict[int, Tuple[float, float]] = {}
+            sent_s = time.monotonic()
+            for servo_id, address, size in records:
+                try:
+                    # Read on to the deadline when the bus is suspicious: no tick to tell.
+                    data[servo_id], asked_s = bus.read_dated(
+                        servo_id, address, size, False if cut[servo_id][0] == 0 and
+                        self._roster.by_id[servo_id].block.has_tick else None)
+                    dated[servo_id] = (asked_s, time.monotonic())
+                except CommError as exc:
+                    data[servo_id] = exc
+            result = SyncResult(data, all(isinstance(each, bytes) for each in data.values()),
+                                sent_s, dated=dated)
+        for servo_id, (lead, size) in cut.items():
+            answer = result.data.get(servo_id)
+            if isinstance(answer, bytes) and lead:
+                result.data[servo_id] = answer[lead:lead + size]
+        return result
 
     def abort_read(self) -> None:
         """Give up the sync read in flight, if any, and release the locks (idempotent)."""
@@ -212,6 +285,14 @@ class Cycle:
             result.data.update(more.data)
             result.alerts.update(more.alerts)
             result.dated.update({sid: (more.sent_s, got) for sid in ids})
+            result.dated.update(more.dated)
+            result.clean = result.clean and more.clean
+        if self._groups and self._group_1:
+            more = self._read_1(reading.length)
+            got = time.monotonic()
+            result.data.update(more.data)
+            result.alerts.update(more.alerts)
+            result.dated.update({servo.servo_id: (more.sent_s, got) for servo in self._group_1})
             result.dated.update(more.dated)
             result.clean = result.clean and more.clean
         fast_parts = -1
@@ -370,8 +451,9 @@ class Cycle:
                 self.retries += 1
                 try:
                     block = self._roster.by_id[servo_id].block
-                    answer, sent_s = bus.read_dated(servo_id, block.read_address,
-                                                    _group_length(block, length))
+                    answer, sent_s = bus.read_dated(
+                        servo_id, block.read_address, _group_length(block, length),
+                        None if not block.has_tick else False)
                 except CommError as exc:
                     result.data[servo_id] = exc
                     continue
@@ -396,18 +478,19 @@ class Cycle:
                 return 0
             by_id = self._roster.by_id
             written, writes, loose = self._goals.take(self._pack)
-            for address, length, data in writes:
-                bus.sync_write(address, length, data)
+            for protocol, address, length, data in writes:
+                bus.sync_write(address, length, data, FRAMERS[protocol])
             for register, goals in loose.items():
-                # Grouped by where the register is: every X-series table has it at the same
-                # address, but a table that differs is honoured.
-                groups: Dict[Tuple[int, int], List[Tuple[int, bytes]]] = {}
+                # Grouped by protocol and where the register is: every X-series table has it
+                # at the same address, but a table that differs is honoured.
+                groups: Dict[Tuple[float, int, int], List[Tuple[int, bytes]]] = {}
                 for sid, value in goals.items():
-                    item = by_id[sid].model.item(register)
-                    groups.setdefault((item.address, item.size), []).append(
+                    servo = by_id[sid]
+                    item = servo.model.item(register)
+                    groups.setdefault((servo.joint.protocol, item.address, item.size), []).append(
                         (sid, item.encode(value)))
-                for (address, size), data in groups.items():
-                    bus.sync_write(address, size, data)
+                for (protocol, address, size), data in groups.items():
+                    bus.sync_write(address, size, data, FRAMERS[protocol])
             return written
 
     def _pack(self, pending: Pending) -> Tuple[int, List[SyncWrite], Pending]:
@@ -436,17 +519,20 @@ class Cycle:
         """Return the sync writes (address, length, data) of the servos whose goals need a slot."""
         by_id = self._roster.by_id
         slotted = [(by_id[sid], need) for sid, need in needs.items()]
-        lengths: Dict[int, int] = {}   # slot address -> the longest need there
+        # (protocol, slot address) -> the longest need there: one sync write each.
+        lengths: Dict[Tuple[float, int], int] = {}
         for servo, need in slotted:
-            address = servo.goal_slot.data_address  # type: ignore[union-attr]
-            lengths[address] = max(need, lengths.get(address, 0))
-        writes: Dict[int, List[Tuple[int, bytes]]] = {address: [] for address in lengths}
+            key = (servo.joint.protocol,
+                   servo.goal_slot.data_address)  # type: ignore[union-attr]
+            lengths[key] = max(need, lengths.get(key, 0))
+        writes: Dict[Tuple[float, int], List[Tuple[int, bytes]]] = {key: [] for key in lengths}
         for servo, _ in slotted:
             slot = servo.goal_slot
             assert slot is not None
-            writes[slot.data_address].append(
-                (servo.servo_id, slot.pack(servo.goal_raw, lengths[slot.data_address])))
-        return [(address, lengths[address], data) for address, data in writes.items()]
+            key = (servo.joint.protocol, slot.data_address)
+            writes[key].append((servo.servo_id, slot.pack(servo.goal_raw, lengths[key])))
+        return [(protocol, address, lengths[protocol, address], data)
+                for (protocol, address), data in writes.items()]
 
 
 def _group_length(block: state_block.StateBlock, length: int) -> int:

@@ -9,7 +9,7 @@ work (the node stays up), and once the port is back every servo rejoins on its o
 
 from typing import Optional
 
-from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
@@ -45,8 +45,11 @@ class PortWatch:
             self.port = self.transport.open_port()
         except PortError as exc:
             raise ManagerError(str(exc)) from None
-        self._ctx.link.bus = Bus(self.port, config.baud_rate,
-                                 latency_timer_s=config.latency_timer / 1000.0)
+        bus = Bus(self.port, config.baud_rate, latency_timer_s=config.latency_timer / 1000.0,
+                  framer=FRAMERS[config.protocol])
+        for servo in self._ctx.roster.order:
+            bus.speak(servo.servo_id, FRAMERS[servo.joint.protocol])
+        self._ctx.link.bus = bus
         self._ctx.port.lost = False
         self._ctx.port.error = ''
 

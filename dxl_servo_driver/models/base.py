@@ -153,6 +153,10 @@ class Model:
     # The first RAM address: items below it are EEPROM, written only with torque off (64
     # on the X and MX, 512 on the P, PRO(A), RH-P12-RN and Y, 24 on Protocol 1.0 tables).
     eeprom_end: int = 64
+    # Instructions not every model has: BULK_READ (Protocol 1.0: the MX and EX-106+ only) and
+    # REBOOT.
+    bulk_read: bool = True
+    reboot: bool = True
     _by_name: dict[str, Item] = field(
         init=False, repr=False, compare=False, hash=False, default_factory=dict)
     _by_address: dict[int, Item] = field(

@@ -99,6 +99,7 @@ def show_from_servos(node: Node, values: Mapping[str, Any]) -> None:
 def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
     """Return a joint's configured value of each JOINT_PARAMS key (None: left to the servo)."""
     return {'id': joint.servo_id, 'operating_mode': joint.operating_mode,
+            'protocol': joint.protocol,
             'model': joint.model.name if joint.model is not None else '',
             'torque_constant': joint.torque_constant_nm_per_a, 'gripper': joint.gripper,
             'gripper_open': joint.gripper_open, 'gripper_closed': joint.gripper_closed,

@@ -144,6 +144,39 @@ def _present_block(model: Model, names: tuple[str, ...]) -> tuple[struct.Struct,
     return struct.Struct(layout), items[0].address
 
 
+_GAINS = ('position_p_gain', 'position_i_gain', 'position_d_gain', 'feedforward_1st_gain',
+          'feedforward_2nd_gain', 'velocity_p_gain', 'velocity_i_gain')
+
+
+def gain_factors(model: Model) -> dict[str, float]:
+    """
+    Return what each gain of a model is multiplied by in the XM430 manual's conversions.
+
+    Those conversions are written for the manual's units (4,096 pulses a turn, 0.229 rpm,
+    214.577 rev/min^2, PWM 885 = 100 %): 1 for every gain of a model with those units. Another
+    family's errors are turned into them and its outputs back into its own PWM; and since the
+    e-manual gives no conversion of its gains, its default gains are taken to act as the
+    XM430 manual's defaults do (a simulator choice: the loops settle as an X's would).
+    """
+    manual = MANUAL_MODEL
+    position = manual.pulses_per_rev / model.pulses_per_rev
+    output = model.pwm_full_raw / manual.pwm_full_raw
+    units = {
+        'position_p_gain': position, 'position_i_gain': position, 'position_d_gain': position,
+        'feedforward_1st_gain': model.velocity_unit_rpm / manual.velocity_unit_rpm,
+        'feedforward_2nd_gain': model.acceleration_unit_rpm2 / manual.acceleration_unit_rpm2,
+        'velocity_p_gain': position, 'velocity_i_gain': position}
+    if all(math.isclose(factor, 1.0) for factor in units.values()) and math.isclose(output, 1.0):
+        return dict.fromkeys(_GAINS, 1.0)
+    factors = {}
+    for name in _GAINS:
+        ratio = 1.0
+        if model.has(name) and model.item(name).initial and manual.item(name).initial:
+            ratio = manual.item(name).initial / model.item(name).initial
+        factors[name] = units[name] * output * ratio
+    return factors
+
+
 def _homing_offset(regs: 'RegisterStore', ignored: int | None) -> int:
     """Return the homing offset in effect: position mode ignores one beyond `ignored`."""
     offset = regs.get('homing_offset')
@@ -195,6 +228,9 @@ class ServoDynamics:
         self._pulses_per_rev = model.pulses_per_rev
         self._homing_ignored = model.homing_position_mode_limit
         self._profile_units = profile_units(model)
+        gains = gain_factors(model)
+        self._kpp, self._kpi, self._kpd, self._kff1, self._kff2, self._kvp, self._kvi = (
+            gains[name] for name in _GAINS)
         self._velocity_raw_per_pulse_ms = 1.0 / self._profile_units.velocity_pulse_ms
         self._pulse_per_rad = model.pulses_per_rev / (2.0 * math.pi)
         self._velocity_unit_per_rad_s = motor.rad_s_to_rpm(1.0) / model.velocity_unit_rpm
@@ -400,14 +436,14 @@ class ServoDynamics:
         goal_velocity = 0.0
         acceleration_raw = 0
         if position_mode:
-            kpp = get('position_p_gain') / 128.0
-            kpi = get('position_i_gain') / 65536.0
-            kpd = get('position_d_gain') / 16.0
-            kff1 = get('feedforward_1st_gain') / 4.0
-            kff2 = get('feedforward_2nd_gain') / 4.0
+            kpp = get('position_p_gain') / 128.0 * self._kpp
+            kpi = get('position_i_gain') / 65536.0 * self._kpi
+            kpd = get('position_d_gain') / 16.0 * self._kpd
+            kff1 = get('feedforward_1st_gain') / 4.0 * self._kff1
+            kff2 = get('feedforward_2nd_gain') / 4.0 * self._kff2
         elif mode == MODE_VELOCITY:
-            kvp = get('velocity_p_gain') / 128.0 * self._beta_pulse_s_per_unit
-            kvi = get('velocity_i_gain') / 65536.0 * self._beta_pulse_s_per_unit
+            kvp = get('velocity_p_gain') / 128.0 * self._beta_pulse_s_per_unit * self._kvp
+            kvi = get('velocity_i_gain') / 65536.0 * self._beta_pulse_s_per_unit * self._kvi
             goal_velocity = float(get('goal_velocity'))
             acceleration_raw = get('profile_acceleration')
 

@@ -141,9 +141,9 @@ class SimServo:
 
     @property
     def protocol_version(self) -> int:
-        """Return the protocol the servo speaks now: its Protocol Version register, else 2."""
+        """Return the protocol it speaks now: its Protocol Version, else its model's one."""
         address = self._protocol_address
-        return 2 if address is None else self.memory.raw[address]
+        return int(self.model.protocol) if address is None else self.memory.raw[address]
 
     def responsive(self, now_s: float) -> bool:
         """Return whether the servo hears packets at now_s (powered and booted)."""

@@ -38,9 +38,9 @@ import sys
 import threading
 import time
 import tty
-from typing import Callable, NoReturn, Sequence, TextIO
+from typing import Callable, Mapping, NoReturn, Sequence, TextIO
 
-from dxl_servo_driver import protocol
+from dxl_servo_driver import protocol, protocol1
 from dxl_servo_driver.models import Model, model_for, model_named, ModelError, xm430
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
@@ -59,13 +59,15 @@ class StartupError(Exception):
     """A start-up failure reported as one line and a non-zero exit."""
 
 
-def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -> None:
+def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
+                     protocols: Mapping[int, float] | None = None) -> None:
     """
-    Set every servo's Return Delay Time (when given) and Baud Rate through WRITE packets.
+    Set every servo's Return Delay Time (when given), Baud Rate and protocol by WRITE packets.
 
     SimBus exposes no register writes, so this goes through the protocol at each servo's
-    current baud, as a user would with a real servo. Servos still booting ignore packets, so it
-    retries until the registers read back right.
+    current baud and in the protocol it speaks, as a user would with a real servo. protocols
+    sets the Protocol Version of the servos that have one (an X servo on 1.0). Servos still
+    booting ignore packets, so it retries until the registers read back right.
     """
     deadline_s = time.monotonic() + SETUP_TIMEOUT_S
     for servo_id in bus.servo_ids():
@@ -77,16 +79,25 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None) -
         wanted: list[tuple[str, int]] = []
         if return_delay_raw is not None:
             wanted.append(('return_delay_time', return_delay_raw))
-        wanted.append(('baud_rate', baud_raw))  # last: it changes the baud the servo listens at
+        wanted.append(('baud_rate', baud_raw))  # it changes the baud the servo listens at
+        version = (protocols or {}).get(servo_id)
+        if version is not None and model.has('protocol_version'):
+            # Last: it changes the protocol the servo listens in.
+            wanted.append(('protocol_version', int(version)))
         for name, value in wanted:
             item = model.item(name)
             while bus.read_register(servo_id, name) != value:
                 if time.monotonic() > deadline_s:
                     raise StartupError(f'servo {servo_id} did not accept {name}={value}')
                 current_bps = model.bauds[bus.read_register(servo_id, 'baud_rate')]
-                params = (item.address.to_bytes(2, 'little')
-                          + value.to_bytes(item.size, 'little'))
-                packet = protocol.encode_instruction(servo_id, protocol.Instruction.WRITE, params)
+                if bus.servo(servo_id).protocol_version == 1:
+                    packet = protocol1.encode_instruction(
+                        servo_id, protocol1.Instruction1.WRITE,
+                        bytes((item.address,)) + item.encode(value))
+                else:
+                    packet = protocol.encode_instruction(
+                        servo_id, protocol.Instruction.WRITE,
+                        item.address.to_bytes(2, 'little') + item.encode(value))
                 bus.feed(packet, current_bps)
                 if bus.read_register(servo_id, name) != value:
                     time.sleep(0.01)
