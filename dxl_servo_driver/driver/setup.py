@@ -56,7 +56,9 @@ class Setup:
                 continue
             self._take_model(servo, model_number)
             servo.online = True
-            errors = self._link.read(servo, 'hardware_error_status')
+            # The Protocol 1.0 tables have no such register: their status packets say it.
+            errors = (self._link.read(servo, 'hardware_error_status')
+                      if servo.model.has('hardware_error_status') else 0)
             if errors:
                 self._log.warn(f'joint {servo.name!r} (id {servo.servo_id}) has hardware errors '
                                f'latched: {", ".join(servo.model.decode_hardware_errors(errors))} '
@@ -103,7 +105,7 @@ class Setup:
         link = self._link
         link.write(servo, 'torque_enable', 0)
         yield
-        wanted = {'operating_mode': servo.model.modes[servo.mode]}
+        wanted = mode_registers(servo, servo.mode)
         wanted.update(servo.joint.register_dict())
         wanted.update(position_limit_registers(servo))
         changed = []
@@ -273,8 +275,9 @@ class Setup:
         yield
         before = link.read(servo, 'present_position')
         yield
-        link.write(servo, 'operating_mode', servo.model.modes[mode])
-        yield
+        for name, value in mode_registers(servo, mode).items():
+            link.write(servo, name, value)
+            yield
         servo.mode = mode
         servo.goal_raw.clear()
         slot = self._slot_for(servo, mode)
@@ -318,9 +321,15 @@ class Setup:
     def resync_mode(self, servo: Servo) -> None:
         """After a failure, believe the servo about its mode."""
         try:
-            raw = self._link.read(servo, 'operating_mode')
-            known = modes.BY_NUMBER.get(raw)
-            servo.mode = known.name if known is not None else servo.mode
+            model = servo.model
+            if model.mode_register:
+                raw = self._link.read(servo, model.mode_register)
+                numbers = {number: name for name, number in model.modes.items()}
+                servo.mode = numbers.get(raw, servo.mode)
+            else:
+                servo.mode = mode_of_angle_limits(
+                    model, self._link.read(servo, 'min_position_limit'),
+                    self._link.read(servo, 'max_position_limit'))
         except (PortError, CommError):
             pass
 
@@ -344,6 +353,38 @@ def _cbp_current(servo: Servo) -> int:
     wanted = servo.goal_raw.get('goal_current',
                                 servo.joint.register_dict().get('goal_current', limit))
     return max(-limit, min(limit, wanted))
+
+
+def mode_registers(servo: Servo, mode: str) -> Dict[str, int]:
+    """
+    Return the registers (and values) that put a servo in a mode.
+
+    Its mode register (Operating Mode; the XL-320's Control Mode), or on the Protocol 1.0
+    tables, which have none, the CW/CCW Angle Limits (min/max_position_limit): both 0 is wheel
+    (velocity) mode, both at the top of their range multi-turn (extended_position, the MX),
+    anything else joint (position) mode within them.
+    """
+    model = servo.model
+    if model.mode_register:
+        return {model.mode_register: model.modes[mode]}
+    low, high = model.item('min_position_limit'), model.item('max_position_limit')
+    if mode == 'velocity':
+        return {'min_position_limit': 0, 'max_position_limit': 0}
+    if mode == 'extended_position':
+        return {'min_position_limit': low.maximum, 'max_position_limit': high.maximum}
+    limits = {'min_position_limit': low.initial, 'max_position_limit': high.initial}
+    limits.update(position_limit_registers(servo, mode))
+    return limits
+
+
+def mode_of_angle_limits(model: models.Model, low: int, high: int) -> str:
+    """Return the mode a Protocol 1.0 table's CW/CCW Angle Limits select (mode_registers)."""
+    if low == high == 0:
+        return 'velocity'
+    top = model.item('max_position_limit').maximum
+    if low == high == top and 'extended_position' in model.modes:
+        return 'extended_position'
+    return 'position'
 
 
 def position_limit_registers(servo: Servo, mode: str = '') -> Dict[str, int]:
