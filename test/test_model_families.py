@@ -146,7 +146,13 @@ def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
     for item in model.items:
         assert re.fullmatch(r'[a-z][a-z0-9_]*', item.name), item.name
         assert item.size in (1, 2, 4) and item.access in ('R', 'RW')
-        assert item.area == ('eeprom' if item.address < model.eeprom_end else 'ram'), item.name
+        if model.family == 'Y':
+            # Areas per item (test_y_models.py checks them): only RAM from eeprom_end on.
+            assert item.area in ('eeprom', 'ram') and (
+                item.address < model.eeprom_end or item.area == 'ram'), item.name
+        else:
+            assert item.area == ('eeprom' if item.address < model.eeprom_end else 'ram'), \
+                item.name
         assert item.minimum <= item.initial <= item.maximum, item.name
         bits = 8 * item.size - (1 if item.signed else 0)
         low, high = (-(1 << bits), (1 << bits) - 1) if item.signed else (0, (1 << bits) - 1)
@@ -197,7 +203,9 @@ def test_indirect_entries_match_the_items(model: Model) -> None:
         target = model.item(f'indirect_data_{number}')
         assert (entry.address, entry.size, entry.initial) == (address, 2, datum)
         assert (target.address, target.size) == (datum, 1)
-        assert entry.minimum == model.eeprom_end and entry.maximum >= model.table_end - 1
+        # RAM only, except on the Y whose entries may point anywhere in the table (0..919).
+        assert entry.minimum == (0 if model.family == 'Y' else model.eeprom_end)
+        assert entry.maximum >= model.table_end - 1
 
 
 @every_other
@@ -206,13 +214,14 @@ def test_physics_is_usable(model: Model) -> None:
     voltages = [point.voltage_v for point in physics.points]
     assert voltages == sorted(set(voltages))
     assert any(math.isclose(v, physics.nominal_voltage_v) for v in voltages)
-    assert physics.gear_ratio > 1 and physics.source
+    # The direct-drive Y (-M001, -B001) have no gear: 1.
+    assert physics.gear_ratio >= 1 and physics.source
     assert model.torque_constant_nm_per_a > 0 and model.stall_torque_nm > 0
     for point in physics.points:
         assert point.stall_current_a > 0 and point.no_load_speed_rpm > 0
     low = model.item('min_voltage_limit')
     high = model.item('max_voltage_limit')
-    nominal = physics.nominal_voltage_v / model.voltage_unit_v
+    nominal = physics.nominal_voltage_v / model.voltage_limit_unit_v
     assert low.minimum <= nominal <= high.maximum
 
 

@@ -152,11 +152,15 @@ class Model:
     mode_register: str = 'operating_mode'
     # The first RAM address: items below it are EEPROM, written only with torque off (64
     # on the X and MX, 512 on the P, PRO(A), RH-P12-RN and Y, 24 on Protocol 1.0 tables).
+    # The Y states an area per item: below 512 some are RAM, and Item.area is what counts.
     eeprom_end: int = 64
     # Instructions not every model has: BULK_READ (Protocol 1.0: the MX and EX-106+ only) and
     # REBOOT.
     bulk_read: bool = True
     reboot: bool = True
+    # Max/Min Voltage Limit's unit where it is not voltage_unit_v (Present Input Voltage's):
+    # the Y reads its input in 0.01 V and limits it in 0.1 V. None: the same unit.
+    limit_voltage_unit_v: float | None = None
     _by_name: dict[str, Item] = field(
         init=False, repr=False, compare=False, hash=False, default_factory=dict)
     _by_address: dict[int, Item] = field(
@@ -208,6 +212,13 @@ class Model:
         if isinstance(key, str):
             return self.item(key)
         return self.by_address(key)
+
+    @property
+    def voltage_limit_unit_v(self) -> float:
+        """Return the unit of Max/Min Voltage Limit in volts."""
+        if self.limit_voltage_unit_v is None:
+            return self.voltage_unit_v
+        return self.limit_voltage_unit_v
 
     @property
     def table_end(self) -> int:

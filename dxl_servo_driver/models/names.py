@@ -25,16 +25,4 @@ OTHER_MODELS: dict[int, tuple[str, str]] = {
     # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
     35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
                          '35074, is supported)'),
-    4000: ('YM070-210-M001', 'a DYNAMIXEL-Y servo'),
-    4010: ('YM070-210-B001', 'a DYNAMIXEL-Y servo'),
-    4020: ('YM070-210-R051', 'a DYNAMIXEL-Y servo'),
-    4030: ('YM070-210-R099', 'a DYNAMIXEL-Y servo'),
-    4040: ('YM070-210-A051', 'a DYNAMIXEL-Y servo'),
-    4050: ('YM070-210-A099', 'a DYNAMIXEL-Y servo'),
-    4120: ('YM080-230-M001', 'a DYNAMIXEL-Y servo'),
-    4130: ('YM080-230-B001', 'a DYNAMIXEL-Y servo'),
-    4140: ('YM080-230-R051', 'a DYNAMIXEL-Y servo'),
-    4150: ('YM080-230-R099', 'a DYNAMIXEL-Y servo'),
-    4160: ('YM080-230-A051', 'a DYNAMIXEL-Y servo'),
-    4170: ('YM080-230-A099', 'a DYNAMIXEL-Y servo'),
 }
