@@ -17,7 +17,7 @@ import pytest
 # joint name -> model number: one of each family (and both MX(2.0) tables: with and without
 # current sensing).
 MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321, 'ph54': 2020, 'h42a': 51201,
-                          'gripper': 35074, 'x_on_1': 1020}
+                          'gripper': 35074, 'ym070': 4000, 'x_on_1': 1020}
 # Joints whose servo speaks Protocol 1.0 (an X servo switched by its Protocol Version).
 PROTOCOLS = {'x_on_1': 1.0}
 # Each joint rests in velocity mode, or current mode where the model has no velocity mode.

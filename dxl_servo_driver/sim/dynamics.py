@@ -154,13 +154,17 @@ def gain_factors(model: Model) -> dict[str, float]:
 
     Those conversions are written for the manual's units (4,096 pulses a turn, 0.229 rpm,
     214.577 rev/min^2, PWM 885 = 100 %): 1 for every gain of a model with those units. Another
-    family's errors are turned into them and its outputs back into its own PWM; and since the
-    e-manual gives no conversion of its gains, its default gains are taken to act as the
-    XM430 manual's defaults do (a simulator choice: the loops settle as an X's would).
+    family's errors are turned into them and its outputs back into its own PWM, scaled by how
+    much faster its motor turns at full output than the manual's (a Y turns 120 times faster:
+    the same error needs that much less output); and since the e-manual gives no conversion of
+    its gains, its default gains are taken to act as the XM430 manual's defaults do (a
+    simulator choice: the loops settle as an X's would).
     """
     manual = MANUAL_MODEL
     position = manual.pulses_per_rev / model.pulses_per_rev
     output = model.pwm_full_raw / manual.pwm_full_raw
+    speed = (manual.physics.nominal.no_load_speed_rpm
+             / model.physics.nominal.no_load_speed_rpm)
     units = {
         'position_p_gain': position, 'position_i_gain': position, 'position_d_gain': position,
         'feedforward_1st_gain': model.velocity_unit_rpm / manual.velocity_unit_rpm,
@@ -173,7 +177,7 @@ def gain_factors(model: Model) -> dict[str, float]:
         ratio = 1.0
         if model.has(name) and model.item(name).initial and manual.item(name).initial:
             ratio = manual.item(name).initial / model.item(name).initial
-        factors[name] = units[name] * output * ratio
+        factors[name] = units[name] * output * speed * ratio
     return factors
 
 
@@ -243,6 +247,10 @@ class ServoDynamics:
         self._load_per_unit = model.load_unit_ratio
         self._present_names = _present_names(model)
         self._present_block = _present_block(model, self._present_names)
+        # Those the table has (the Y has no Moving): the others are computed, not stored.
+        self._has_present = frozenset(name for name in self._present_names if model.has(name))
+        # Input voltage against the limits, in the limits' unit (the Y: 0.01 V and 0.1 V).
+        self._voltage_to_limit = model.voltage_unit_v / model.voltage_limit_unit_v
         # The Hardware Error Status bits the physics detects, the model's.
         error_bits = table_for(model).error_bits
         self._error_input_voltage = error_bits['input_voltage']
@@ -661,10 +669,13 @@ class ServoDynamics:
             block[0].pack_into(raw, block[1], *values)
         else:
             for name, value in zip(self._present_names, values):
-                regs.set(name, value)
+                if name in self._has_present:
+                    regs.set(name, value)
 
         errors = 0
-        if voltage_raw < get('min_voltage_limit') or voltage_raw > get('max_voltage_limit'):
+        voltage_limit_raw = voltage_raw * self._voltage_to_limit
+        if voltage_limit_raw < get('min_voltage_limit') or \
+                voltage_limit_raw > get('max_voltage_limit'):
             errors |= self._error_input_voltage
         if temperature_raw > get('temperature_limit'):
             errors |= self._error_overheating

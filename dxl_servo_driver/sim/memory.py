@@ -17,7 +17,7 @@ Two ways in:
 import struct
 from typing import Callable
 
-from dxl_servo_driver.models import Item, Model, model_for, ModelError
+from dxl_servo_driver.models import Item, Model, model_for, ModelError, modes
 from dxl_servo_driver.models.xm430 import MODEL_NUMBER, MODEL_NUMBERS, TABLE_SIZE
 from dxl_servo_driver.protocol import ErrorCode
 
@@ -48,6 +48,23 @@ class _DirectionCodec:
         data[address:address + self._item.size] = self._item.encode(value)
 
 
+class _ModeCodec:
+    """A mode register read and written as the XM430 manual's Operating Mode values."""
+
+    def __init__(self, item: Item, model: Model) -> None:
+        self.address = item.address
+        self.format = '<B'
+        self._to_manual = {number: modes.BY_NAME[name].number
+                           for name, number in model.modes.items()}
+        self._to_model = {manual: number for number, manual in self._to_manual.items()}
+
+    def unpack_from(self, data: bytes | bytearray, address: int) -> tuple[int]:
+        return (self._to_manual.get(data[address], -1),)
+
+    def pack_into(self, data: bytearray, address: int, value: int) -> None:
+        data[address] = self._to_model.get(value, data[address])
+
+
 class TableError(Exception):
     """A control-table access refused with a status error code."""
 
@@ -65,10 +82,16 @@ class Table:
 
     def __init__(self, model: Model) -> None:
         self.model = model
-        self.by_name: dict[str, Item] = {item.name: item for item in model.items}
         # The manual's table reaches 661 (its second indirect bank); its models never end sooner.
         self.size = max(model.table_end, TABLE_SIZE) if model.number in MANUAL_MODEL_NUMBERS \
             else model.table_end
+        # What the servo keeps without a register for it (hardware_errors()): after the table,
+        # out of the bus's reach.
+        self.internal = _internal_items(model, self.size)
+        self.memory_size = max((item.address + item.size for item in self.internal),
+                               default=self.size)
+        items = (*model.items, *self.internal)
+        self.by_name: dict[str, Item] = {item.name: item for item in items}
         # address -> the item covering it (None for reserved addresses)
         self.owner: list[Item | None] = [None] * self.size
         for item in model.items:
@@ -76,12 +99,12 @@ class Table:
                 self.owner[item.address + offset] = item
         self.structs: dict[str, struct.Struct | _DirectionCodec] = {
             item.name: _DirectionCodec(item) if item.direction_bit
-            else struct.Struct(_FORMATS[(item.size, item.signed)]) for item in model.items}
+            else struct.Struct(_FORMATS[(item.size, item.signed)]) for item in items}
         # name -> (unpack_from, address) and (pack_into, address, mask, wrap threshold):
         # get() and set() run tens of times per servo per millisecond.
         self.getters = {item.name: (self.structs[item.name].unpack_from, item.address)
-                        for item in model.items}
-        self.setters = {item.name: self._setter(item) for item in model.items}
+                        for item in items}
+        self.setters = {item.name: self._setter(item) for item in items}
         # The X names of registers this table calls otherwise (Model.roles) reach them too.
         for role, own in model.roles.items():
             if own in self.by_name and role not in self.by_name:
@@ -89,18 +112,30 @@ class Table:
                 self.structs[role] = self.structs[own]
                 self.getters[role] = self.getters[own]
                 self.setters[role] = self.setters[own]
+        # The physics counts modes as the XM430 manual does: a mode register of other values
+        # (the XL-320's Control Mode, 2 for joint) reads and writes as those by that name.
+        register = model.mode_register
+        if register and register != 'operating_mode' and register in self.by_name:
+            codec = _ModeCodec(self.by_name[register], model)
+            self.structs['operating_mode'] = codec
+            self.getters['operating_mode'] = (codec.unpack_from, codec.address)
+            self.setters['operating_mode'] = (codec.pack_into, codec.address, 0xFF, 0x100)
         # indirect data address -> address of the indirect address item that maps it
         self.indirect: dict[int, int] = {data: address for address, data in model.indirect}
         self.indirect_low = min(self.indirect, default=self.size)
         self.banks = _banks(model.indirect)
         self.valid_modes = frozenset(model.modes.values())
-        self.position_mode = model.modes.get('position')
+        # In the manual's numbers, as get('operating_mode') gives them on every table.
+        self.position_mode = modes.BY_NAME['position'].number if 'position' in model.modes \
+            else None
         self.multi_turn_modes = frozenset(
-            model.modes[name] for name in ('extended_position', 'current_based_position')
+            modes.BY_NAME[name].number for name in ('extended_position', 'current_based_position')
             if name in model.modes)
-        self.eeprom = tuple(item for item in model.items if item.area == 'eeprom')
-        self.ram_start = model.eeprom_end
-        self.ram_initial = tuple((item.name, item.initial) for item in model.items
+        self.eeprom = tuple(item for item in items if item.area == 'eeprom')
+        # Every RAM byte (the Y has RAM items among its EEPROM ones): a reboot zeroes them.
+        self.ram_bytes = tuple(address for item in items if item.area == 'ram'
+                               for address in range(item.address, item.address + item.size))
+        self.ram_initial = tuple((item.name, item.initial) for item in items
                                  if item.area == 'ram' and item.initial)
         self.goals_from_limits = tuple(
             (goal, limit) for goal, limit in _GOALS_FROM_LIMITS
@@ -115,9 +150,9 @@ class Table:
         self.error_status_address = self._byte_address('hardware_error_status')
         # Hardware Error Status: bit of each error name, and every bit that means something.
         self.error_bits: dict[str, int] = {
-            name: bit for bit, name in model.hardware_error_bits.items()}
+            name: bit for bit, name in _error_bits(model).items()}
         self.error_mask = 0
-        for bit in model.hardware_error_bits:
+        for bit in _error_bits(model):
             self.error_mask |= bit
 
     def _byte_address(self, name: str) -> int:
@@ -132,6 +167,61 @@ class Table:
         # A direction-bit value wraps as a signed one would, then the codec clamps it.
         threshold = 1 << (bits - 1) if item.signed or item.direction_bit else modulus
         return self.structs[item.name].pack_into, item.address, modulus - 1, threshold
+
+
+def _error_bits(model: Model) -> dict[int, str]:
+    """
+    Return the hardware error bits the simulated servo latches.
+
+    The model's; a table whose errors are not bits (the Y's Error Code) is simulated with the
+    XM430 manual's, kept internally (it reports no error code: not modelled).
+    """
+    return model.hardware_error_bits or dict(MANUAL_MODEL.hardware_error_bits)
+
+
+# The registers the physics reads (by the XM430 manual's names) that a table may lack, and
+# what the simulated servo holds in their place: None is the manual's initial value.
+_PHYSICS_REGISTERS: tuple[tuple[str, int | None], ...] = (
+    ('hardware_error_status', 0), ('shutdown', None), ('operating_mode', None),
+    ('position_p_gain', None), ('position_i_gain', 0), ('position_d_gain', 0),
+    ('feedforward_1st_gain', 0), ('feedforward_2nd_gain', 0), ('velocity_p_gain', None),
+    ('velocity_i_gain', None), ('goal_pwm', None), ('pwm_limit', None), ('goal_current', 0),
+    ('current_limit', 0), ('profile_velocity', 0), ('profile_acceleration', 0),
+    ('homing_offset', 0), ('moving_threshold', None), ('moving', 0), ('moving_status', 0),
+    ('position_trajectory', 0), ('velocity_trajectory', 0), ('realtime_tick', 0),
+    ('present_pwm', 0))
+
+
+def _internal_items(model: Model, start: int) -> tuple[Item, ...]:
+    """
+    Return what a servo keeps without a register for it, at start.. (beyond the bus's reach).
+
+    Every servo latches its hardware errors and shuts down on some of them, has a mode, gains
+    and limits its physics runs by; a Protocol 1.0 table says its errors only in its status
+    packets (its Alarm Shutdown is the shutdown mask, by role) and its mode by its angle limits,
+    the Y its errors by an Error Code, the XL-320 has no PWM. The simulator keeps what the
+    table lacks here, out of the bus's reach: the manual's values (a gain the table lacks acts
+    as the manual's default; the error mask is every error), the servo's own where it has them
+    (its PWM full scale).
+    """
+    mask = 0
+    for bit in _error_bits(model):
+        mask |= bit
+    own = {'shutdown': mask, 'goal_pwm': model.pwm_full_raw, 'pwm_limit': model.pwm_full_raw,
+           'operating_mode': modes.BY_NAME['position'].number}
+    items = []
+    address = start
+    for name, value in _PHYSICS_REGISTERS:
+        if model.has(name):
+            continue
+        manual = MANUAL_MODEL.item(name)
+        initial = own.get(name, manual.initial if value is None else value)
+        area = 'eeprom' if manual.area == 'eeprom' else 'ram'
+        items.append(Item(name, address, manual.size, area, 'R', initial, -(1 << 31),
+                          (1 << 31) - 1, manual.signed, None, manual.unit,
+                          f'(simulator) {manual.description}'))
+        address += manual.size
+    return tuple(items)
 
 
 def _banks(pairs: tuple[tuple[int, int], ...]) -> tuple[tuple[int, int, int], ...]:
@@ -175,7 +265,7 @@ class Memory:
         self._firmware = self._check_firmware(table.model, firmware_version)
         self._getters = table.getters
         self._setters = table.setters
-        self._data = bytearray(table.size)
+        self._data = bytearray(table.memory_size)
         self._read_plans: dict[tuple[int, int], tuple[bytes, list[tuple[int, int]]]] = {}
         # The table's bytes, for fast reads of 1-byte items by address (never replaced).
         self.raw = self._data
@@ -244,7 +334,9 @@ class Memory:
     def reset_ram(self) -> None:
         """Return every RAM item to its power-on value (reboot, power cycle)."""
         table = self.table
-        self._data[table.ram_start:] = bytes(table.size - table.ram_start)
+        data = self._data
+        for address in table.ram_bytes:
+            data[address] = 0
         for name, initial in table.ram_initial:
             self.set(name, initial)
         # Goal PWM / Goal Current power on at the (EEPROM) limits.
@@ -353,7 +445,8 @@ class Memory:
             if not item.minimum <= value <= item.maximum:
                 raise TableError(ErrorCode.DATA_RANGE,
                                  f'{name}={value} outside {item.minimum}..{item.maximum}')
-            if name == 'operating_mode' and value not in table.valid_modes:
+            if name in ('operating_mode', self.model.mode_register) \
+                    and value not in table.valid_modes:
                 raise TableError(ErrorCode.DATA_RANGE,
                                  f'operating mode {value} does not exist on the '
                                  f'{self.model.name}')

@@ -117,6 +117,9 @@ def rad_s_to_rpm(rad_s: float) -> float:
     return rad_s * 60.0 / (2.0 * math.pi)
 
 
+MIN_MECHANICAL_TIME_S = 0.002
+
+
 def rpm_to_rad_s(rpm: float) -> float:
     """Convert rpm to rad/s."""
     return rpm * 2.0 * math.pi / 60.0
@@ -145,6 +148,11 @@ def fit_motor(gear_ratio: float, point: VoltagePoint) -> Motor:
     ke = (volts - r_ohm * no_load_a) / speed_rad_s
     viscous = (kt * no_load_a - friction_nm) / speed_rad_s
     inertia = INERTIA_KG_M2 * (gear_ratio / GEAR_RATIO) ** 2
+    # A bare motor quicker than the 1 ms control period (the Y series: time constants of
+    # 0.03..0.2 ms) cannot be simulated at that period: it turns the load inertia that gives
+    # it MIN_MECHANICAL_TIME_S (it is always built into something). Every other model is slower.
+    damping = kt * ke / r_ohm + viscous
+    inertia = max(inertia, MIN_MECHANICAL_TIME_S * damping)
     return Motor(gear_ratio, r_ohm, kt, ke, friction_nm, viscous, inertia)
 
 
