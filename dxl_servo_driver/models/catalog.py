@@ -2,8 +2,8 @@
 The supported DYNAMIXEL models: the X series here, the other families from their modules.
 
 Every X model is stated as its differences from the XM430 manual; the MX(2.0) (models.mx)
-are too; the P, PRO(A) and RH-P12-RN(A) (models.pro) have their own layout. catalog
-indexes them all by model number and names the refused ones.
+are too; the P, PRO(A) and RH-P12-RN(A) (models.pro) and the XL-320 (models.xl320) have their
+own layout. catalog indexes them all by model number and names the refused ones.
 
 Sources: the XM430 manual and models/xm430.py (authority for 1020 and 1030), the ROBOTIS
 model files shipped with dynamixel-sdk 4.1 (addresses and sizes of every model) and the
@@ -18,7 +18,7 @@ the model files do (the X330's indirect block).
 
 from dataclasses import dataclass, field
 
-from dxl_servo_driver.models import modes, mx, pro, xm430
+from dxl_servo_driver.models import modes, mx, pro, xl320, xm430
 from dxl_servo_driver.models.base import Item, Model, ModelError, Physics, VoltagePoint
 from dxl_servo_driver.models.layout import (
     build, indirect_items, indirect_pairs, is_indirect, item, Overrides, Value)
@@ -32,7 +32,8 @@ X_FAMILIES: tuple[str, ...] = (
     'XL330/XC330')
 # The families as the refusal text and the README name them.
 FAMILIES: tuple[str, ...] = (
-    *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)', 'RH-P12-RN(A)')
+    *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)', 'RH-P12-RN(A)',
+    'XL-320')
 
 SIX_MODES: dict[str, int] = modes.numbers(*modes.NAMES)
 # XL430/XC430 have no current sensing, hence no current nor current-based position mode.
@@ -432,7 +433,7 @@ def _index(models: list[Model]) -> dict[int, tuple[Model, ...]]:
 X_MODELS: tuple[Model, ...] = tuple(
     variant for variants in _index(_MODELS).values() for variant in variants)
 # The other families, each from its own module.
-_MODELS += mx.MODELS + pro.MODELS
+_MODELS += mx.MODELS + pro.MODELS + xl320.MODELS
 SUPPORTED: dict[int, tuple[Model, ...]] = _index(_MODELS)
 ALL_MODELS: tuple[Model, ...] = tuple(
     variant for variants in SUPPORTED.values() for variant in variants)

@@ -21,7 +21,6 @@ OTHER_MODELS: dict[int, tuple[str, str]] = {
     310: ('MX-64', 'an MX servo on Protocol 1.0 firmware'),
     320: ('MX-106', 'an MX servo on Protocol 1.0 firmware'),
     360: ('MX-12W', 'an MX servo on Protocol 1.0 firmware'),
-    350: ('XL-320', 'an X-series servo with a control table unlike the others'),
     # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
     35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
                          '35074, is supported)'),
