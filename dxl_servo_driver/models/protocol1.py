@@ -23,7 +23,7 @@ names in snake_case; Model.roles maps the XM430 manual's names the driver asks f
 The names shutdown, temperature_limit and min/max_voltage_limit are the e-manual's already.
 Left out: operating_mode (no register: the mode follows from the angle limits, both 0 wheel,
 both 4,095 multi-turn on the MX, joint otherwise, and Torque Ctrl Mode Enable on the MX-64/106:
-mode_register ''); the modes carry the X's numbers for their names, since no register holds
+mode_register ''; the modes carry the X's numbers for their names, since no register holds
 them); pwm_limit and goal_pwm (Max Torque and Torque Limit count 0.1 % of the maximum torque,
 pwm_full_raw 1,023 is that scale, but there is no PWM register); profile_velocity (Moving Speed
 is the joint-mode speed and the wheel-mode goal at once); velocity_limit, current_limit,
