@@ -86,8 +86,8 @@ def test_operating_mode_defaults_to_position() -> None:
      'arm.registers.min_position_limit', 'above'),
     ({'arm.registers.homing_offset': 2000}, 'arm.registers.homing_offset', '1024'),
     # models: unknown names and numbers, modes and registers the named model lacks
-    ({'arm.model': 'XL-320'}, 'arm.model', 'no supported model is named'),
-    ({'arm.model': 350}, 'arm.model', 'XL-320'),
+    ({'arm.model': 'YM070-210-M001'}, 'arm.model', 'no supported model is named'),
+    ({'arm.model': 4000}, 'arm.model', 'YM070-210-M001'),
     ({'arm.model': True}, 'arm.model', 'model name'),
     ({'wheel.model': 'XL430-W250', 'wheel.operating_mode': 'current'}, 'wheel.operating_mode',
      'has no current mode'),

@@ -17,6 +17,9 @@ from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
 
 OTHERS = tuple(model for model in ALL_MODELS if model not in X_MODELS)
+# Protocol 1.0 models: no SDK model file (dynamixel-sdk 4.1 ships 2.0 tables only); they are
+# checked against dynamixel-workbench and the e-manual in test_protocol1_models.py.
+PROTOCOL1_NUMBERS = frozenset(model.number for model in ALL_MODELS if model.protocol == 1.0)
 
 
 def _sdk_tables() -> pathlib.Path | None:
@@ -93,6 +96,8 @@ every_other = pytest.mark.parametrize('model', OTHERS, ids=_label)
 @every_other
 def test_every_model_file_row_is_in_the_table(model: Model) -> None:
     assert SDK is not None
+    if model.protocol == 1.0:
+        pytest.skip('no SDK model file for Protocol 1.0 (test_protocol1_models.py)')
     path = SDK / _listed()[model.number]
     seen = set()
     for address, size, sdk_name in _sdk_rows(path):
@@ -114,6 +119,8 @@ def test_every_model_file_row_is_in_the_table(model: Model) -> None:
 @every_other
 def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> None:
     assert SDK is not None
+    if model.protocol == 1.0:
+        pytest.skip('no SDK model file for Protocol 1.0 (test_protocol1_models.py)')
     path = SDK / _listed()[model.number]
     info = _type_info(path)
     if model.family in ('XL-320', 'RH-P12-RN'):
@@ -132,7 +139,8 @@ def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> 
 @needs_sdk
 def test_the_sdk_lists_every_supported_number_but_one() -> None:
     listed = _listed()
-    assert set(SUPPORTED) - set(listed) == {1280}   # XW430-T200: only the e-manual numbers it
+    # XW430-T200: only the e-manual numbers it; Protocol 1.0: no SDK file at all.
+    assert set(SUPPORTED) - set(listed) == {1280} | PROTOCOL1_NUMBERS
     assert all(number in SUPPORTED or number in OTHER_MODELS for number in listed)
 
 
@@ -156,7 +164,14 @@ def test_items_are_sorted_disjoint_and_well_formed(model: Model) -> None:
         assert item.minimum <= item.initial <= item.maximum, item.name
         bits = 8 * item.size - (1 if item.signed else 0)
         low, high = (-(1 << bits), (1 << bits) - 1) if item.signed else (0, (1 << bits) - 1)
+        if item.direction_bit:   # decoded: the magnitude below the bit, signed by it
+            assert not item.signed and item.direction_bit < (1 << bits), item.name
+            low, high = 1 - item.direction_bit, item.direction_bit - 1
+        elif item.raw_zero:      # decoded: raw - raw_zero
+            low, high = -item.raw_zero, (1 << bits) - 1 - item.raw_zero
         assert low <= item.minimum and item.maximum <= high, item.name
+        for value in {item.minimum, item.initial, item.maximum}:
+            assert item.decode(item.encode(value)) == value, item.name
         if item.limit is not None:
             assert model.has(item.limit), item.name
         assert model.lookup(item.address) is item and model.lookup(item.name) is item
@@ -185,11 +200,20 @@ def test_modes_units_and_bauds(model: Model) -> None:
             for register in modes.BY_NAME[name].slot:
                 assert model.has(register), (name, register)
     baud = model.item('baud_rate_bus' if model.family == 'Y' else 'baud_rate')
-    assert sorted(model.bauds) == list(range(baud.minimum, baud.maximum + 1))
     speeds = [model.bauds[value] for value in sorted(model.bauds)]
-    assert speeds == sorted(set(speeds)) and baud.initial in model.bauds
+    if model.protocol == 1.0:
+        # Any value v is 2,000,000 / (v + 1) bit/s (test_protocol1_models.py); the table
+        # holds the e-manual's list, slower as the value grows.
+        assert all(baud.minimum <= value <= baud.maximum for value in model.bauds)
+        assert len(set(speeds)) == len(speeds)
+    else:
+        assert sorted(model.bauds) == list(range(baud.minimum, baud.maximum + 1))
+        assert speeds == sorted(set(speeds))
+    assert baud.initial in model.bauds
     assert all(bit & (bit - 1) == 0 and bit < 0x100 for bit in model.hardware_error_bits)
-    assert bool(model.hardware_error_bits) == model.has('hardware_error_status')
+    # Protocol 1.0: the bits of the status packet's error byte (no register holds them).
+    assert bool(model.hardware_error_bits) == (model.has('hardware_error_status')
+                                               or model.protocol == 1.0)
     assert model.item('model_number').initial == model.number
 
 

@@ -320,7 +320,8 @@ def test_model_for_picks_the_only_table_whatever_the_firmware() -> None:
 
 
 @pytest.mark.parametrize('number,names', [
-    (12, ('AX-12A', 'Protocol 1.0')), (29, ('MX-28', 'Protocol 1.0')), (9999, ('9999',)),
+    (113, ('DX-113', 'Protocol 1.0')), (4000, ('YM070-210-M001', 'DYNAMIXEL-Y')),
+    (9999, ('9999',)),
 ])
 def test_refused_models_are_named(number: int, names: tuple[str, ...]) -> None:
     reason = unsupported_reason(number)
@@ -344,8 +345,8 @@ def test_model_named() -> None:
     assert model_named('xh540-w270-t/r') is model_for(1100)
     assert model_named('XW430-T200') is model_for(1280)
     assert model_named('XC330-M288') is model_for(1240)
-    with pytest.raises(ModelError, match='AX-12'):
-        model_named('AX-12A')
+    with pytest.raises(ModelError, match='DX-113'):
+        model_named('DX-113')
 
 
 def test_item_lookups_fail_clearly() -> None:

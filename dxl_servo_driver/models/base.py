@@ -31,6 +31,18 @@ class Item:
     # Present Speed / Load of the older tables: this bit is the direction (CW), the bits below
     # it the magnitude; 0 for a plain (two's complement or unsigned) value.
     direction_bit: int = 0
+    # The raw value that means 0, for a register stored with an offset rather than a sign
+    # (Current of the MX-64/106 on Protocol 1.0: 2,048 is no current); the decoded value is
+    # raw - raw_zero, and minimum/maximum are decoded values. 0 for every other register.
+    # Whoever reads the raw bytes without decode() (a struct over a block) must subtract it.
+    raw_zero: int = 0
+
+    def __post_init__(self) -> None:
+        if self.direction_bit and self.raw_zero:
+            raise ValueError(f'{self.name}: a direction bit and an offset zero exclude '
+                             'each other')
+        if self.raw_zero and self.signed:
+            raise ValueError(f'{self.name}: an offset zero is stored unsigned')
 
     def decode(self, data: bytes | bytearray) -> int:
         """Return the value of the item's bytes (little-endian; the direction bit as a sign)."""
@@ -38,6 +50,8 @@ class Item:
             raw = int.from_bytes(data, 'little')
             magnitude = raw & (self.direction_bit - 1)
             return -magnitude if raw & self.direction_bit else magnitude
+        if self.raw_zero:
+            return int.from_bytes(data, 'little') - self.raw_zero
         return int.from_bytes(data, 'little', signed=self.signed)
 
     def encode(self, value: int) -> bytes:
@@ -47,6 +61,8 @@ class Item:
                 raise OverflowError(f'{self.name}: {value} outside its magnitude')
             value = (self.direction_bit | -value) if value < 0 else value
             return value.to_bytes(self.size, 'little')
+        if self.raw_zero:
+            return (value + self.raw_zero).to_bytes(self.size, 'little')
         return value.to_bytes(self.size, 'little', signed=self.signed)
 
 
@@ -154,9 +170,12 @@ class Model:
     # on the X and MX, 512 on the P, PRO(A), RH-P12-RN and Y, 24 on Protocol 1.0 tables).
     # The Y states an area per item: below 512 some are RAM, and Item.area is what counts.
     eeprom_end: int = 64
-    # Instructions not every model has: BULK_READ (Protocol 1.0: the MX and EX-106+ only) and
-    # REBOOT.
+    # Whether the servo answers BULK_READ (0x92): every Protocol 2.0 model; on Protocol 1.0
+    # only the MX and the EX-106+ (not the AX, RX and DX).
     bulk_read: bool = True
+    # Whether the servo answers REBOOT (0x08): every Protocol 2.0 model; no Protocol 1.0
+    # one (the 1.0 instruction set has no REBOOT: clear an alarm shutdown by writing Torque
+    # Limit again, or by a power cycle).
     reboot: bool = True
     # Max/Min Voltage Limit's unit where it is not voltage_unit_v (Present Input Voltage's):
     # the Y reads its input in 0.01 V and limits it in 0.1 V. None: the same unit.

@@ -21,7 +21,8 @@ Overrides: TypeAlias = Mapping[str, Mapping[str, Value]]
 
 def item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
          maximum: int, *, signed: bool = False, limit: str | None = None, unit: str = '',
-         description: str = '', eeprom_end: int = EEPROM_END) -> Item:
+         description: str = '', eeprom_end: int = EEPROM_END, direction_bit: int = 0,
+         raw_zero: int = 0) -> Item:
     """
     Return an Item, its area derived from the address.
 
@@ -29,7 +30,7 @@ def item(name: str, address: int, size: int, access: str, initial: int, minimum:
     """
     area = 'eeprom' if address < eeprom_end else 'ram'
     return Item(name, address, size, area, access, initial, minimum, maximum, signed, limit,
-                unit, description)
+                unit, description, direction_bit, raw_zero)
 
 
 def build(base: Iterable[Item], *, remove: Iterable[str] = (), add: Iterable[Item] = (),

@@ -8,20 +8,11 @@ leaves this list when the catalogue supports it.  Nothing is read at run time.
 
 # model number -> (name, what it is)
 OTHER_MODELS: dict[int, tuple[str, str]] = {
-    # Protocol 1.0 models (ROBOTIS e-manual model numbers).
-    10: ('RX-10', 'a Protocol 1.0 DYNAMIXEL servo'),
-    12: ('AX-12A', 'a Protocol 1.0 DYNAMIXEL servo'),
-    18: ('AX-18A', 'a Protocol 1.0 DYNAMIXEL servo'),
-    24: ('RX-24F', 'a Protocol 1.0 DYNAMIXEL servo'),
-    28: ('RX-28', 'a Protocol 1.0 DYNAMIXEL servo'),
-    29: ('MX-28', 'an MX servo on Protocol 1.0 firmware'),
-    64: ('RX-64', 'a Protocol 1.0 DYNAMIXEL servo'),
-    107: ('EX-106+', 'a Protocol 1.0 DYNAMIXEL servo'),
-    300: ('AX-12W', 'a Protocol 1.0 DYNAMIXEL servo'),
-    310: ('MX-64', 'an MX servo on Protocol 1.0 firmware'),
-    320: ('MX-106', 'an MX servo on Protocol 1.0 firmware'),
-    360: ('MX-12W', 'an MX servo on Protocol 1.0 firmware'),
-    350: ('XL-320', 'an X-series servo with a control table unlike the others'),
+    # Protocol 1.0 models the e-manual documents without the datasheet figures a joint needs
+    # (DX-113: no stall current; DX-116: no stall current nor no-load speed).
+    113: ('DX-113', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current'),
+    116: ('DX-116', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current '
+                    'and speed'),
     # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
     35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
                          '35074, is supported)'),
