@@ -152,17 +152,19 @@ class StateBlock(BlockShape):
         self.has_tick = 'realtime_tick' in self.present
         self.has_canary = not self.direct
         self._positions = tuple(self.index[name] for name in kept)
-        # Present Speed / Present Load of the older tables: bit 10 the direction, not a sign.
-        self._direction_bits = tuple(
-            (self.index[name], model.item(self._registers[name]).direction_bit)
-            for name in kept if model.item(self._registers[name]).direction_bit)
+        # Present Speed / Load of the older tables (bit 10 the direction, not a sign) and the
+        # MX(1.0)'s Current (2,048 is none): read unsigned, then decoded by their item.
+        self._recoded = tuple(
+            (self.index[name], model.item(self._registers[name])) for name in kept
+            if model.item(self._registers[name]).direction_bit
+            or model.item(self._registers[name]).raw_zero)
         if self.direct:
             self._layout_direct(model, kept)
         else:
             self._layout_indirect(model, kept)
         # The X layout: the struct's values are the shape's, in order, nothing to move.
         self._as_shape = (self._positions == tuple(range(len(self.names)))
-                          and not self._direction_bits)
+                          and not self._recoded)
 
     def _layout_indirect(self, model: Model, kept: list[str]) -> None:
         fields = []
@@ -191,7 +193,8 @@ class StateBlock(BlockShape):
         self.tagged_struct = struct.Struct('<' + codes[:len(motion)])
 
     def _layout_direct(self, model: Model, kept: list[str]) -> None:
-        items = sorted((model.item(self._registers[name]), name) for name in kept)
+        items = sorted(((model.item(self._registers[name]), name) for name in kept),
+                       key=lambda pair: pair[0].address)
         start = items[0][0].address
         codes = ''
         fields = []
@@ -227,9 +230,8 @@ class StateBlock(BlockShape):
         whole = [0] * len(self.names)
         for index, value in zip(self._positions, values):
             whole[index] = value
-        for index, bit in self._direction_bits:
-            raw = whole[index]
-            whole[index] = -(raw & (bit - 1)) if raw & bit else raw & (bit - 1)
+        for index, item in self._recoded:
+            whole[index] = item.decode(whole[index].to_bytes(item.size, 'little'))
         return tuple(whole)
 
     def decode(self, data: bytes, offset: int = 0) -> tuple[int, ...]:

@@ -6,7 +6,11 @@ from typing import Any, Dict
 from dxl_servo_driver.config import (
     ConfigError, DriverConfig, JOINT_PARAMS, JOINT_PARAMS_BY_NAME, PARAMS, RUNTIME_PARAMS,
     THRESHOLDS, validate)
+from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
+
+# A model still refused (by its name), whichever names.py has left.
+REFUSED = min(OTHER_MODELS)
 
 
 def base() -> Dict[str, Any]:
@@ -63,7 +67,7 @@ def test_operating_mode_defaults_to_position() -> None:
     # a value beyond its limit register in the same file
     ({'arm.registers.velocity_limit': 50}, 'arm.registers.profile_velocity', 'exceeds'),
     # baud not in the table
-    ({'baud_rate': 250000}, 'baud_rate', 'not one of'),
+    ({'baud_rate': 250001}, 'baud_rate', 'not one of'),
     # missing id
     ({'arm.id': None}, 'arm.id', 'no id'),
     # wrong types
@@ -86,8 +90,8 @@ def test_operating_mode_defaults_to_position() -> None:
      'arm.registers.min_position_limit', 'above'),
     ({'arm.registers.homing_offset': 2000}, 'arm.registers.homing_offset', '1024'),
     # models: unknown names and numbers, modes and registers the named model lacks
-    ({'arm.model': 'YM070-210-M001'}, 'arm.model', 'no supported model is named'),
-    ({'arm.model': 4000}, 'arm.model', 'YM070-210-M001'),
+    ({'arm.model': 'XM999-W1'}, 'arm.model', 'no supported model is named'),
+    ({'arm.model': REFUSED}, 'arm.model', OTHER_MODELS[REFUSED][0]),
     ({'arm.model': True}, 'arm.model', 'model name'),
     ({'wheel.model': 'XL430-W250', 'wheel.operating_mode': 'current'}, 'wheel.operating_mode',
      'has no current mode'),

@@ -85,6 +85,9 @@ def test_load_models_publish_effort_from_present_load() -> None:
 def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
     effort = 'present_current' if table.has('present_current') else 'present_load'
     block = state_block.state_block(table, effort)
+    if block.direct:
+        _check_direct_block(table, block)
+        return
     targets = block.indirect_map()
     assert len(targets) == block.size
     expected = []
@@ -109,6 +112,31 @@ def test_state_block_maps_every_byte_of_its_registers(table: Model) -> None:
         old_x330 = table.family in ('XL330', 'XC330') and table.min_firmware == 0
         assert block.read_address == (208 if old_x330 else 224)
         assert block.indirect_map_address() == 168
+
+
+def _check_direct_block(table: Model, block: state_block.StateBlock) -> None:
+    """Check a table without indirect entries enough: one read of its registers, in place."""
+    assert not table.indirect or len(table.indirect) < block.size
+    assert state_block.goal_slot(table, block, next(iter(table.modes))) is None
+    assert not block.has_canary and block.has_tick == table.has('realtime_tick')
+    # One span from the first state register to the last, each field at its own offset.
+    for field in block.fields:
+        item = table.item(field.name)
+        assert block.read_address + field.offset == item.address, field
+        assert field.size == item.size
+    last = max(table.item(field.name).address + field.size for field in block.fields)
+    assert block.read_address + block.size == last
+    # Decoding the span as the servo holds it gives each field's value (signs by direction bit).
+    values = {field.name: -5 if table.item(field.name).direction_bit else 7
+              for field in block.fields}
+    data = bytearray(block.size)
+    for field in block.fields:
+        item = table.item(field.name)
+        data[field.offset:field.offset + field.size] = item.encode(values[field.name])
+    decoded = block.decode(bytes(data))
+    for name in block.names:
+        expected = values[block.register(name)] if block.has(name) else 0
+        assert decoded[block.index[name]] == expected, name
 
 
 def test_state_block_decodes_signed_values() -> None:

@@ -9,6 +9,7 @@ from dxl_servo_driver import config, scan
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.models import model_for, modes, xm430
+from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.serial_port import open_port
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
@@ -21,6 +22,9 @@ MANUAL = model_for(xm430.MODEL_NUMBER)   # the XM430 manual's table
 SLOW_MACHINE_TIMEOUT_MS = '200'
 XM430_LINE = 'id {id}: model 1030 (XM430-W210), firmware 45, {baud} bps, mode {mode}, ' \
              'hardware errors: {errors}'
+
+# A model still refused (by its name), whichever names.py has left.
+REFUSED = min(OTHER_MODELS)
 
 
 Starter = Callable[[List[int], int], VirtualBusProcess]
@@ -258,8 +262,9 @@ def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optiona
 
 
 def test_describe_says_what_could_not_be_read() -> None:
-    assert scan.describe(servo(5, model=4000, mode=None, errors=None, firmware=44)) == (
-        'id 5: model 4000 (YM070-210-M001, not supported), firmware 44, 57600 bps, '
+    assert scan.describe(servo(5, model=REFUSED, mode=None, errors=None, firmware=44)) == (
+        f'id 5: model {REFUSED} ({OTHER_MODELS[REFUSED][0]}, not supported), firmware 44, '
+        '57600 bps, '
         'mode not read (unknown control table), hardware errors: not read')
     assert scan.describe(servo(9, model=9999, mode=None, errors=None)).startswith(
         'id 9: model 9999 (unknown model)')
@@ -280,7 +285,7 @@ def test_the_baud_with_most_servos_wins_and_a_tie_goes_to_the_first_scanned() ->
 
 
 def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
-    found = [servo(1), servo(2, model=4000), servo(3, mode=2), servo(4, mode=None),
+    found = [servo(1), servo(2, model=REFUSED), servo(3, mode=2), servo(4, mode=None),
              servo(5, 1000000), servo(6, mode=16, model=1060)]
     params, comments = scan.build_parameters('/dev/ttyDXL', found, latency_timer_ms=1.0)
     assert params['joints'] == ['joint_1', 'joint_6']
@@ -292,7 +297,7 @@ def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
         assert f'  id {servo_id}' in text
     assert 'set its baud_rate register to 1 (57600 bps)' in text
     with pytest.raises(ValueError, match='no servo the node could drive'):
-        scan.build_parameters('/dev/ttyDXL', [servo(2, model=4000)])
+        scan.build_parameters('/dev/ttyDXL', [servo(2, model=REFUSED)])
     with pytest.raises(ValueError, match='no servo found'):
         scan.build_parameters('/dev/ttyDXL', [])
 

@@ -9,6 +9,7 @@ import struct
 
 from dxl_servo_driver.models import (
     Model, model_for, model_named, SUPPORTED, unsupported_reason, X_MODELS)
+from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.protocol import (
     BROADCAST_ID, decode_packet, encode_instruction, ErrorCode, Instruction, Packet)
 from dxl_servo_driver.sim import motor
@@ -436,9 +437,14 @@ def test_virtual_bus_models_option() -> None:
     assert args.models == {1: model_for(1030), 2: model_for(1030)}
 
 
+# A model still refused, by its name (whichever names.py has left).
+REFUSED = min(OTHER_MODELS)
+
+
 @pytest.mark.parametrize('argv, fragment', [
     (['--ids', '1', '--models', 'XL999-W1'], '--models XL999-W1: no supported model is named'),
-    (['--ids', '1', '--models', '12'], '--models 12: ' + unsupported_reason(12)),
+    (['--ids', '1', '--models', str(REFUSED)],
+     f'--models {REFUSED}: ' + unsupported_reason(REFUSED)),
     (['--ids', '1', '--models', '4242'], '--models 4242: ' + unsupported_reason(4242)),
     (['--ids', '1', '2', '3', '--models', '1060', '1060'], '(3 ids, 2 models)'),
     (['--ids', '1', '--models', '1200', '--baud', '4500000'], 'servo 1 (XL330-M288) supports'),

@@ -65,9 +65,19 @@ MX_TURNS_LIMIT = 28_672    # e-manual: multi-turn Goal Position -28,672..28,672 
 MX_OFFSET_LIMIT = 24_576   # e-manual: Multi Turn Offset -24,576..24,576
 MX_CURRENT_ZERO = 2048     # e-manual: Current reads 2,048 with no current flowing
 GOAL_ACCELERATION_RPM2 = 8.583 / 360.0 * 3600.0   # 8.583 deg/s^2 in rev/min^2
-# The e-manual's Baud Rate table; each value v gives 2,000,000 / (v + 1) bit/s.
-BAUD_VALUES = (1, 3, 4, 7, 9, 16, 34, 103, 207)
-BAUD_RATES: dict[int, int] = {value: 2_000_000 // (value + 1) for value in BAUD_VALUES}
+# The e-manual's Baud Rate table: each value v runs the servo at 2,000,000 / (v + 1) bit/s,
+# and the table names the host speed each one serves, within the 3 % a UART tolerates (34 is
+# 57,142.9 bit/s, 0.79 % from 57,600; 16 is 2.1 % from 115,200). A host opens its port at that
+# speed, so that is the rate the catalogue gives; servo_rate() says what the servo runs at.
+BAUD_RATES: dict[int, int] = {1: 1_000_000, 3: 500_000, 4: 400_000, 7: 250_000, 9: 200_000,
+                              16: 115_200, 34: 57_600, 103: 19_200, 207: 9_600}
+
+
+def servo_rate(value: int) -> float:
+    """Return the bit rate a Protocol 1.0 servo runs at for a Baud Rate value below 250."""
+    return 2_000_000 / (value + 1)
+
+
 MX_BAUD_RATES: dict[int, int] = {**BAUD_RATES, 250: 2_250_000, 251: 2_500_000, 252: 3_000_000}
 # The status packet's error byte (e-manual Protocol 1.0): what Alarm LED and Shutdown select.
 ERROR_BITS: dict[int, str] = {

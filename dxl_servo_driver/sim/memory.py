@@ -33,7 +33,7 @@ MANUAL_MODEL_NUMBERS = frozenset(MODEL_NUMBERS)
 
 
 class _DirectionCodec:
-    """struct.Struct's unpack_from/pack_into for a value whose sign is a direction bit."""
+    """struct.Struct's unpack_from/pack_into for a value stored by direction bit or offset."""
 
     def __init__(self, item: Item) -> None:
         self._item = item
@@ -43,9 +43,13 @@ class _DirectionCodec:
         return (self._item.decode(data[address:address + self._item.size]),)
 
     def pack_into(self, data: bytearray, address: int, value: int) -> None:
-        bit = self._item.direction_bit
-        value = max(1 - bit, min(bit - 1, value))   # the physics may exceed the magnitude
-        data[address:address + self._item.size] = self._item.encode(value)
+        item = self._item
+        if item.direction_bit:   # the physics may exceed the magnitude
+            value = max(1 - item.direction_bit, min(item.direction_bit - 1, value))
+        else:
+            top = (1 << (8 * item.size)) - 1
+            value = max(-item.raw_zero, min(top - item.raw_zero, value))
+        data[address:address + item.size] = item.encode(value)
 
 
 class _ModeCodec:
@@ -97,8 +101,8 @@ class Table:
         for item in model.items:
             for offset in range(item.size):
                 self.owner[item.address + offset] = item
-        self.structs: dict[str, struct.Struct | _DirectionCodec] = {
-            item.name: _DirectionCodec(item) if item.direction_bit
+        self.structs: dict[str, struct.Struct | _DirectionCodec | _ModeCodec] = {
+            item.name: _DirectionCodec(item) if item.direction_bit or item.raw_zero
             else struct.Struct(_FORMATS[(item.size, item.signed)]) for item in items}
         # name -> (unpack_from, address) and (pack_into, address, mask, wrap threshold):
         # get() and set() run tens of times per servo per millisecond.
@@ -164,8 +168,9 @@ class Table:
     def _setter(self, item: Item) -> tuple[Callable[..., None], int, int, int]:
         bits = 8 * item.size
         modulus = 1 << bits
-        # A direction-bit value wraps as a signed one would, then the codec clamps it.
-        threshold = 1 << (bits - 1) if item.signed or item.direction_bit else modulus
+        # A direction-bit or offset value wraps as a signed one would; the codec clamps it.
+        threshold = 1 << (bits - 1) if item.signed or item.direction_bit or item.raw_zero \
+            else modulus
         return self.structs[item.name].pack_into, item.address, modulus - 1, threshold
 
 
