@@ -17,9 +17,10 @@ import pytest
 # joint name -> model number: one of each family (and both MX(2.0) tables: with and without
 # current sensing).
 MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321, 'ph54': 2020, 'h42a': 51201,
-                          'gripper': 35074, 'ym070': 4000, 'x_on_1': 1020}
+                          'gripper': 35074, 'ym070': 4000, 'xl320': 350, 'ax12': 12,
+                          'mx28_1': 29, 'x_on_1': 1020}
 # Joints whose servo speaks Protocol 1.0 (an X servo switched by its Protocol Version).
-PROTOCOLS = {'x_on_1': 1.0}
+PROTOCOLS = {'x_on_1': 1.0, 'ax12': 1.0, 'mx28_1': 1.0}
 # Each joint rests in velocity mode, or current mode where the model has no velocity mode.
 HOME = {name: 'velocity' if 'velocity' in model_for(number).modes else 'current'
         for name, number in MODELS.items()}
@@ -60,7 +61,11 @@ def test_every_mode_takes_goals_in_si_written_in_the_model_s_unit(
     for mode in table.modes:
         response = h.call('set_operating_mode', name=[name], mode=mode)
         assert response.success, (name, mode, response.message)
-        assert h.reg(IDS[name], table.mode_register) == table.modes[mode]
+        if table.mode_register:
+            assert h.reg(IDS[name], table.mode_register) == table.modes[mode]
+        else:   # a Protocol 1.0 table: its CW/CCW Angle Limits say the mode
+            assert table.angle_limit_mode(h.reg(IDS[name], 'min_position_limit'),
+                                          h.reg(IDS[name], 'max_position_limit')) == mode
         kind, value = (GRIPPER_GOALS if name == 'gripper' else GOALS).get(mode, GOALS[mode])
         response = h.call(f'set_{kind}', name=[name], value=[value])
         assert response.success, (name, mode, response.message)

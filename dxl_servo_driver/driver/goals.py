@@ -200,5 +200,9 @@ class Goals:
 def _clamp(servo: Servo, register: str, raw: int) -> int:
     if register == 'goal_position':
         return clamp_position(servo, raw)
-    bound = servo.limits[servo.model.item(register).limit or '']
+    item = servo.model.item(register)
+    if item.limit is None or item.limit not in servo.limits:
+        # No register bounds it at run time (the AX's Moving Speed): its own range does.
+        return min(max(raw, item.minimum), item.maximum)
+    bound = servo.limits[item.limit]
     return min(max(raw, -bound), bound)

@@ -120,8 +120,9 @@ class Setup:
                 yield
         if changed:
             self._log.info(f'joint {servo.name!r}: EEPROM written: {", ".join(changed)}')
-        servo.homing_offset = link.read(servo, 'homing_offset')
-        yield
+        if servo.model.has('homing_offset'):
+            servo.homing_offset = link.read(servo, 'homing_offset')
+            yield
         yield from self._apply_ram(servo)
 
     def _apply_ram(self, servo: Servo) -> Steps:
@@ -277,6 +278,8 @@ class Setup:
         yield
         for name, value in mode_registers(servo, mode).items():
             link.write(servo, name, value)
+            if name in LIMIT_REGISTERS:   # a Protocol 1.0 table's mode is its angle limits
+                servo.limits[name] = value
             yield
         servo.mode = mode
         servo.goal_raw.clear()
@@ -310,10 +313,12 @@ class Setup:
     def _single_turn_homing(self, servo: Servo) -> Steps:
         # Position mode ignores a homing offset beyond +-1024 (the XM430 manual): one left over
         # from another mode is put back to the configured one.
+        ignored = servo.model.homing_position_mode_limit
+        if ignored is None or not servo.model.has('homing_offset'):
+            return
         offset = self._link.read(servo, 'homing_offset')
         yield
-        ignored = servo.model.homing_position_mode_limit
-        if ignored is not None and abs(offset) > ignored:
+        if abs(offset) > ignored:
             self._link.write_verified(servo, 'homing_offset',
                                       servo.joint.register_dict().get('homing_offset', 0))
             yield
@@ -327,8 +332,8 @@ class Setup:
                 numbers = {number: name for name, number in model.modes.items()}
                 servo.mode = numbers.get(raw, servo.mode)
             else:
-                servo.mode = mode_of_angle_limits(
-                    model, self._link.read(servo, 'min_position_limit'),
+                servo.mode = model.angle_limit_mode(
+                    self._link.read(servo, 'min_position_limit'),
                     self._link.read(servo, 'max_position_limit'))
         except (PortError, CommError):
             pass
@@ -362,7 +367,7 @@ def mode_registers(servo: Servo, mode: str) -> Dict[str, int]:
     Its mode register (Operating Mode; the XL-320's Control Mode), or on the Protocol 1.0
     tables, which have none, the CW/CCW Angle Limits (min/max_position_limit): both 0 is wheel
     (velocity) mode, both at the top of their range multi-turn (extended_position, the MX),
-    anything else joint (position) mode within them.
+    anything else joint (position) mode within them (Model.angle_limit_mode reads them back).
     """
     model = servo.model
     if model.mode_register:
@@ -375,16 +380,6 @@ def mode_registers(servo: Servo, mode: str) -> Dict[str, int]:
     limits = {'min_position_limit': low.initial, 'max_position_limit': high.initial}
     limits.update(position_limit_registers(servo, mode))
     return limits
-
-
-def mode_of_angle_limits(model: models.Model, low: int, high: int) -> str:
-    """Return the mode a Protocol 1.0 table's CW/CCW Angle Limits select (mode_registers)."""
-    if low == high == 0:
-        return 'velocity'
-    top = model.item('max_position_limit').maximum
-    if low == high == top and 'extended_position' in model.modes:
-        return 'extended_position'
-    return 'position'
 
 
 def position_limit_registers(servo: Servo, mode: str = '') -> Dict[str, int]:

@@ -254,6 +254,20 @@ class Model:
         """Return stall torque over stall current at the nominal voltage."""
         return self.physics.nominal.torque_constant_nm_per_a
 
+    def angle_limit_mode(self, low: int, high: int) -> str:
+        """
+        Return the mode a Protocol 1.0 table's CW/CCW Angle Limits (low, high) select.
+
+        Both 0: wheel (velocity) mode; both at the top of their range: multi-turn (the MX's
+        extended_position); anything else: joint (position) mode within them.
+        """
+        if low == high == 0 and 'velocity' in self.modes:
+            return 'velocity'
+        if (low == high == self.item('max_position_limit').maximum
+                and 'extended_position' in self.modes):
+            return 'extended_position'
+        return 'position'
+
     def decode_hardware_errors(self, status: int) -> list[str]:
         """Return the names of the bits set in a Hardware Error Status value."""
         return [name for bit, name in self.hardware_error_bits.items() if status & bit]

@@ -313,13 +313,38 @@ class SimServo:
             if memory.get('hardware_error_status') & memory.get('shutdown'):
                 return ErrorCode.RESULT_FAIL
         memory.commit(new)
-        self._side_effects(names, old_torque, old_mode)
+        self._side_effects(self._as_roles(names), old_torque, old_mode)
         return 0
+
+    def _as_roles(self, names: frozenset[str]) -> frozenset[str]:
+        """
+        Return the items written under the XM430 manual's names the side effects go by.
+
+        Another table's own names get their roles (the AX's Moving Speed is goal_velocity, the
+        XL-320's Control Mode operating_mode); a Protocol 1.0 table's CW/CCW Angle Limits are
+        its mode too: the simulator's Operating Mode follows them.
+        """
+        model = self.model
+        roles = {own: role for role, own in model.roles.items()}
+        named = frozenset(roles.get(name, name) for name in names)
+        if model.mode_register and model.mode_register in names:
+            named |= {'operating_mode'}
+        if not model.mode_register and named & {'min_position_limit', 'max_position_limit'}:
+            memory = self.memory
+            mode = model.angle_limit_mode(memory.get('min_position_limit'),
+                                          memory.get('max_position_limit'))
+            memory.set('operating_mode', modes.BY_NAME[mode].number)
+            named |= {'operating_mode'}
+        return named
 
     def _side_effects(self, names: frozenset[str], old_torque: int, old_mode: int) -> None:
         memory = self.memory
         dynamics = self.dynamics
-        if 'operating_mode' in names and memory.get('operating_mode') != old_mode:
+        if 'operating_mode' in names and memory.get('operating_mode') != old_mode \
+                and self.model.mode_register != 'operating_mode':
+            # A wheel/joint switch (the XL-320, the Protocol 1.0 tables) resets nothing.
+            dynamics.reinit_present_position(memory)
+        elif 'operating_mode' in names and memory.get('operating_mode') != old_mode:
             memory.set('profile_velocity', 0)
             memory.set('profile_acceleration', 0)
             for goal, limit in memory.table.goals_from_limits:
