@@ -150,7 +150,9 @@ class StateBlock(BlockShape):
         self.present = frozenset(kept)
         self.has_pwm = 'present_pwm' in self.present
         self.has_tick = 'realtime_tick' in self.present
-        self.has_canary = not self.direct
+        # The canary works where a reboot clears the indirect map (RAM, as on the X): the P,
+        # PRO(A) and Y keep theirs in EEPROM, so their block reads on after a restart.
+        self.has_canary = not self.direct and model.by_address(model.indirect[0][0]).area == 'ram'
         self._positions = tuple(self.index[name] for name in kept)
         # Present Speed / Load of the older tables (bit 10 the direction, not a sign) and the
         # MX(1.0)'s Current (2,048 is none): read unsigned, then decoded by their item.

@@ -114,3 +114,18 @@ def test_torque_is_off_at_exit() -> None:
         harness.close()
     assert all(harness.sim.servo(servo_id).memory.get('torque_enable') == 0
                for servo_id in IDS.values())
+
+
+@pytest.mark.parametrize('name', sorted(MODELS))
+def test_a_servo_that_lost_its_power_is_found_and_restored(h: NodeHarness, name: str) -> None:
+    # The X's indirect map is gone after a power cut (its canary reads 0); the P, PRO(A) and
+    # Y keep theirs in EEPROM and the XL-320 and Protocol 1.0 tables have none: their torque
+    # went off with no error to say why.
+    assert h.node is not None
+    servo = h.node.manager.servos[name]
+    before = servo.restarts
+    h.wait_reg(IDS[name], 'torque_enable', lambda value: value == 1)
+    h.sim.powercycle(IDS[name])
+    h.wait_reg(IDS[name], 'torque_enable', lambda value: value == 1, timeout_s=15.0)
+    assert servo.restarts == before + 1
+    h.joint_states.wait(lambda m: name in m.name, timeout_s=10.0)

@@ -28,7 +28,7 @@ from dxl_servo_driver.bus import FRAMERS, READ_TAGS, SyncRead, SyncResult
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.goals import Goals, Pending
 from dxl_servo_driver.driver.servo import (
-    BLOCK, IDX_HW_ERROR, IDX_TICK, Servo, Throttle)
+    BLOCK, IDX_HW_ERROR, IDX_TICK, IDX_TORQUE, Servo, Throttle)
 from dxl_servo_driver.errors import CommError, StatusError
 from dxl_servo_driver.protocol import READ_PACKET_SIZE, STATUS_OVERHEAD
 
@@ -379,7 +379,12 @@ class Cycle:
                     continue
                 values = checked
                 full = True
-            elif full and block.restarted(values):
+            elif full and (block.restarted(values) or (
+                    not block.has_canary and servo.torque_wanted and servo.state is not None
+                    and not values[IDX_TORQUE] and not values[IDX_HW_ERROR]
+                    and not alerts.get(servo_id))):
+                # No canary (a map that survives a reboot, or none): a servo whose torque went
+                # off with no error to say why lost its power (or was rebooted by another).
                 servo.fresh = False
                 self.restarted.append(servo)
                 continue
