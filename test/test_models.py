@@ -320,7 +320,7 @@ def test_model_for_picks_the_only_table_whatever_the_firmware() -> None:
 
 
 @pytest.mark.parametrize('number,names', [
-    (113, ('DX-113', 'Protocol 1.0')), (4000, ('YM070-210-M001', 'DYNAMIXEL-Y')),
+    (113, ('DX-113', 'Protocol 1.0')), (35072, ('L42-10-S300-R', 'DYNAMIXEL PRO')),
     (9999, ('9999',)),
 ])
 def test_refused_models_are_named(number: int, names: tuple[str, ...]) -> None:

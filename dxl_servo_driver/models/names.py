@@ -13,7 +13,8 @@ OTHER_MODELS: dict[int, tuple[str, str]] = {
     113: ('DX-113', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current'),
     116: ('DX-116', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current '
                     'and speed'),
-    # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
-    35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
-                         '35074, is supported)'),
+    # The L42-10-S300-R on the original PRO firmware: its e-manual page contradicts itself
+    # (models.pro_legacy says how) and dynamixel-workbench's table differs from it.
+    35072: ('L42-10-S300-R', 'a DYNAMIXEL PRO whose published control table contradicts '
+                             'itself'),
 }
