@@ -320,7 +320,7 @@ def test_model_for_picks_the_only_table_whatever_the_firmware() -> None:
 
 
 @pytest.mark.parametrize('number,names', [
-    (113, ('DX-113', 'Protocol 1.0')), (35072, ('L42-10-S300-R', 'DYNAMIXEL PRO')),
+    (116, ('DX-116', 'Protocol 1.0')), (35072, ('L42-10-S300-R', 'DYNAMIXEL PRO')),
     (9999, ('9999',)),
 ])
 def test_refused_models_are_named(number: int, names: tuple[str, ...]) -> None:
@@ -345,8 +345,8 @@ def test_model_named() -> None:
     assert model_named('xh540-w270-t/r') is model_for(1100)
     assert model_named('XW430-T200') is model_for(1280)
     assert model_named('XC330-M288') is model_for(1240)
-    with pytest.raises(ModelError, match='DX-113'):
-        model_named('DX-113')
+    with pytest.raises(ModelError, match='DX-116'):
+        model_named('DX-116')
 
 
 def test_item_lookups_fail_clearly() -> None:
