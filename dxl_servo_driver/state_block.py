@@ -95,8 +95,8 @@ class BlockShape:
         """Return the decoder of a read of length bytes (motion, tagged or whole)."""
         if length == self.size:
             return self.decode
-        if length == self.tagged_size:
-            return self.decode_tagged
+        if self.tagged_size <= length < self.size:
+            return self.decode_tagged   # a block without a tick read a few bytes on (a tag)
         if length == self.motion_size:
             return self.decode_motion
         raise ValueError(f'no state block part is {length} bytes long')
@@ -258,8 +258,8 @@ class StateBlock(BlockShape):
         """Return the decoder of a read of length bytes (motion, tagged or whole)."""
         if length == self.size:
             return self.decode
-        if length == self.tagged_size:
-            return self.decode_tagged
+        if self.tagged_size <= length < self.size:
+            return self.decode_tagged   # a block without a tick read a few bytes on (a tag)
         if length == self.motion_size:
             return self.decode_motion
         raise ValueError(f'no state block part is {length} bytes long')
@@ -327,9 +327,11 @@ class GoalSlot:
                               for item in items)
         targets: list[int] = []
         self.needs: dict[str, int] = {}
-        for item in items:
+        for name, item in zip(self.registers, items):
             targets.extend(range(item.address, item.address + item.size))
-            self.needs[item.name] = len(targets)   # bytes a write of this goal must carry
+            # Bytes a write of this goal must carry, by the name the driver asks with (a
+            # PRO's Goal Torque is its goal_current).
+            self.needs[name] = len(targets)
         self.targets = tuple(targets[k % len(targets)] for k in range(GOAL_SLOT_SIZE))
 
     def map_bytes(self) -> bytes:

@@ -13,6 +13,7 @@ import re
 from dxl_servo_driver.models import (
     ALL_MODELS, FAMILIES, Model, model_for, model_named, ModelError, modes, SUPPORTED,
     unsupported_reason, X_MODELS)
+from dxl_servo_driver.models import pro_legacy
 from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
 
@@ -20,6 +21,9 @@ OTHERS = tuple(model for model in ALL_MODELS if model not in X_MODELS)
 # Protocol 1.0 models: no SDK model file (dynamixel-sdk 4.1 ships 2.0 tables only); they are
 # checked against dynamixel-workbench and the e-manual in test_protocol1_models.py.
 PROTOCOL1_NUMBERS = frozenset(model.number for model in ALL_MODELS if model.protocol == 1.0)
+# The PRO on its original firmware and the first RH-P12-RN: no SDK model file either; checked
+# against dynamixel-workbench and the e-manual in test_pro_models.py.
+NO_SDK_FILE = PROTOCOL1_NUMBERS | frozenset(model.number for model in pro_legacy.MODELS)
 
 
 def _sdk_tables() -> pathlib.Path | None:
@@ -96,8 +100,8 @@ every_other = pytest.mark.parametrize('model', OTHERS, ids=_label)
 @every_other
 def test_every_model_file_row_is_in_the_table(model: Model) -> None:
     assert SDK is not None
-    if model.protocol == 1.0:
-        pytest.skip('no SDK model file for Protocol 1.0 (test_protocol1_models.py)')
+    if model.number in NO_SDK_FILE:
+        pytest.skip('no SDK model file (test_protocol1_models.py, test_pro_models.py)')
     path = SDK / _listed()[model.number]
     seen = set()
     for address, size, sdk_name in _sdk_rows(path):
@@ -119,8 +123,8 @@ def test_every_model_file_row_is_in_the_table(model: Model) -> None:
 @every_other
 def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> None:
     assert SDK is not None
-    if model.protocol == 1.0:
-        pytest.skip('no SDK model file for Protocol 1.0 (test_protocol1_models.py)')
+    if model.number in NO_SDK_FILE:
+        pytest.skip('no SDK model file (test_protocol1_models.py, test_pro_models.py)')
     path = SDK / _listed()[model.number]
     info = _type_info(path)
     if model.family in ('XL-320', 'RH-P12-RN'):
@@ -139,8 +143,9 @@ def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> 
 @needs_sdk
 def test_the_sdk_lists_every_supported_number_but_one() -> None:
     listed = _listed()
-    # XW430-T200: only the e-manual numbers it; Protocol 1.0: no SDK file at all.
-    assert set(SUPPORTED) - set(listed) == {1280} | PROTOCOL1_NUMBERS
+    # XW430-T200: only the e-manual numbers it; Protocol 1.0 and the original PRO firmware:
+    # no SDK file at all.
+    assert set(SUPPORTED) - set(listed) == {1280} | NO_SDK_FILE
     assert all(number in SUPPORTED or number in OTHER_MODELS for number in listed)
 
 

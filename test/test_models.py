@@ -347,8 +347,8 @@ def test_model_named() -> None:
     assert model_named('xh540-w270-t/r') is model_for(1100)
     assert model_named('XW430-T200') is model_for(1280)
     assert model_named('XC330-M288') is model_for(1240)
-    with pytest.raises(ModelError, match='DX-113'):
-        model_named('DX-113')
+    with pytest.raises(ModelError, match='DX-116'):
+        model_named('DX-116')
 
 
 def test_item_lookups_fail_clearly() -> None:

@@ -197,7 +197,8 @@ WB_MX.update({'multi_turn_offset': (20, 2), 'resolution_divider': (22, 1), 'd_ga
 WB_EXTMX = {**WB_MX, 'current': (68, 2), 'torque_ctrl_mode_enable': (70, 1),
             'goal_torque': (71, 2)}
 WORKBENCH = {12: WB_AX, 300: WB_AX, 18: WB_AX, 10: WB_AX, 24: WB_AX, 28: WB_AX, 64: WB_AX,
-             117: WB_AX, 107: WB_EX, 360: WB_MX, 29: WB_MX, 310: WB_EXTMX, 320: WB_EXTMX}
+             113: WB_AX, 117: WB_AX, 107: WB_EX, 360: WB_MX, 29: WB_MX, 310: WB_EXTMX,
+             320: WB_EXTMX}
 # Items the e-manual has and the workbench lacks: Realtime Tick (MX firmware 40/41 on),
 # the MX-106's Drive Mode.
 BEYOND_WORKBENCH = {'realtime_tick', 'drive_mode'}
@@ -216,6 +217,11 @@ EMANUAL = {
          'temperature_limit': (11, 1, 80), 'lock': (47, 1, 0), 'registered': (44, 1, 0),
          'punch': (48, 2, 32)},
     64: {'model_number': (0, 2, 64), 'max_voltage_limit': (13, 1, 190)},
+    113: {'model_number': (0, 2, 113), 'baud_rate': (4, 1, 34),
+          'temperature_limit': (11, 1, 85),
+          'min_voltage_limit': (12, 1, 60), 'max_voltage_limit': (13, 1, 190),
+          'cw_compliance_margin': (26, 1, 0), 'ccw_compliance_slope': (29, 1, 32),
+          'punch': (48, 2, 32)},
     117: {'model_number': (0, 2, 117), 'baud_rate': (4, 1, 34),
           'max_voltage_limit': (13, 1, 190), 'cw_compliance_margin': (26, 1, 1)},
     107: {'model_number': (0, 2, 107), 'ccw_angle_limit': (8, 2, 4095),
@@ -342,8 +348,13 @@ def test_units_differ_where_the_manual_says() -> None:
     assert model_named('mx-28') is model_for(29) and model_named('MX-28(2.0)') is model_for(30)
 
 
-def test_the_dx113_and_dx116_stay_refused_by_name() -> None:
-    for number, name in ((113, 'DX-113'), (116, 'DX-116')):
-        assert number not in SUPPORTED and OTHER_MODELS[number][0] == name
+def test_the_dx116_stays_refused_by_name_and_the_dx113_borrows_the_rx10_constant() -> None:
+    assert 116 not in SUPPORTED and OTHER_MODELS[116][0] == 'DX-116'
+    dx113, rx10 = model_for(113), model_for(10)
+    assert 113 not in OTHER_MODELS and dx113.modes == {'position': 3}
+    assert dx113.torque_constant_nm_per_a == pytest.approx(rx10.torque_constant_nm_per_a,
+                                                           rel=0.01)
+    assert dx113.stall_torque_nm == 1.0 and dx113.physics.nominal.no_load_speed_rpm == 54
+    assert dx113.physics.gear_ratio == 192.6 and 'assumed' in dx113.physics.source
     for model in PROTOCOL1:
         assert model.number not in OTHER_MODELS

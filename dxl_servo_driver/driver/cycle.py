@@ -210,10 +210,12 @@ class Cycle:
         # over an old reply late (in the place of one it lost) is caught by nothing else. The
         # whole block (health too) every health_period_s.
         length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
+        self._tag = (self._tag + 1) % READ_TAGS
         if not self._groups:
             return _Ended(self._read_1(length)), stamp, full, length
         block, ids = self._groups[0]
-        pending = bus.begin_sync_read(block.read_address, _group_length(block, length), ids,
+        pending = bus.begin_sync_read(block.read_address,
+                                      _group_length(block, length, self._tag), ids,
                                       self.fast, self._linger_next)
         self._linger_next = False
         return pending, stamp, full, length
@@ -226,7 +228,6 @@ class Cycle:
         it, as far as the table starts, and the tag's bytes are cut off again here.
         """
         bus = self._link.io()
-        self._tag = (self._tag + 1) % READ_TAGS
         records = []
         cut: Dict[int, Tuple[int, int]] = {}
         for servo in self._group_1:
@@ -279,7 +280,8 @@ class Cycle:
         for block, ids in self._groups[1:]:
             # Models whose state block lives elsewhere (an X330 before firmware 53): one more
             # sync read each layout, dated on their own.
-            more = bus.sync_read(block.read_address, _group_length(block, reading.length), ids,
+            more = bus.sync_read(block.read_address,
+                                 _group_length(block, reading.length, self._tag), ids,
                                  reading.pending.fast)
             got = time.monotonic()
             result.data.update(more.data)
@@ -540,6 +542,16 @@ class Cycle:
                 for (protocol, address), data in writes.items()]
 
 
-def _group_length(block: state_block.StateBlock, length: int) -> int:
-    """Return the read length of a block: a whole-block read is as long as that model's."""
-    return block.size if length >= BLOCK.size or block.direct else length
+def _group_length(block: state_block.StateBlock, length: int, tag: int = 0) -> int:
+    """
+    Return the read length of a model's block for a read of length bytes of the shape.
+
+    The whole block, its tagged part or its motion part as that model lays them out (a table
+    without a tick has no tick to read); a block without a tick is read tag bytes further
+    (within the block), so its length tells this cycle's answer from a late one of another.
+    """
+    if block.direct or length >= BLOCK.size:
+        return block.size
+    part = (block.tagged_size if length == BLOCK.tagged_size else
+            block.motion_size if length == BLOCK.motion_size else length)
+    return part if block.has_tick else min(block.size, part + tag)

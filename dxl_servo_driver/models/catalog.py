@@ -2,7 +2,8 @@
 The supported DYNAMIXEL models: the X series here, the other families from their modules.
 
 Every X model is stated as its differences from the XM430 manual; the MX(2.0) (models.mx)
-are too; the P, PRO(A) and RH-P12-RN(A) (models.pro), the Y (models.y), the XL-320
+are too; the P, PRO(A) and RH-P12-RN(A) (models.pro), the PRO on its original firmware and
+the first RH-P12-RN (models.pro_legacy), the Y (models.y), the XL-320
 (models.xl320) and the Protocol 1.0 models (models.protocol1) have their own layouts. catalog
 indexes them all by model number and names the refused ones.
 
@@ -19,7 +20,7 @@ the model files do (the X330's indirect block).
 
 from dataclasses import dataclass, field
 
-from dxl_servo_driver.models import modes, mx, pro, protocol1, xl320, xm430, y
+from dxl_servo_driver.models import modes, mx, pro, pro_legacy, protocol1, xl320, xm430, y
 from dxl_servo_driver.models.base import Item, Model, ModelError, Physics, VoltagePoint
 from dxl_servo_driver.models.layout import (
     build, indirect_items, indirect_pairs, is_indirect, item, Overrides, Value)
@@ -33,9 +34,10 @@ X_FAMILIES: tuple[str, ...] = (
     'XL330/XC330')
 # The families as the refusal text and the README name them.
 FAMILIES: tuple[str, ...] = (
-    *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)', 'RH-P12-RN(A)',
+    *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)',
+    'PRO (H42/H54/M42/M54/L54)', 'RH-P12-RN/RH-P12-RN(A)',
     'Y (YM070-210/YM080-230)', 'XL-320', 'AX-12A/12W/18A', 'RX-10/24F/28/64', 'EX-106+',
-    'DX-117', 'MX-12W/28/64/106(1.0)')
+    'DX-113/117', 'MX-12W/28/64/106(1.0)')
 
 SIX_MODES: dict[str, int] = modes.numbers(*modes.NAMES)
 # XL430/XC430 have no current sensing, hence no current nor current-based position mode.
@@ -435,7 +437,7 @@ def _index(models: list[Model]) -> dict[int, tuple[Model, ...]]:
 X_MODELS: tuple[Model, ...] = tuple(
     variant for variants in _index(_MODELS).values() for variant in variants)
 # The other families, each from its own module.
-_MODELS += mx.MODELS + pro.MODELS + y.MODELS + xl320.MODELS + protocol1.MODELS
+_MODELS += mx.MODELS + pro.MODELS + pro_legacy.MODELS + y.MODELS + xl320.MODELS + protocol1.MODELS
 SUPPORTED: dict[int, tuple[Model, ...]] = _index(_MODELS)
 ALL_MODELS: tuple[Model, ...] = tuple(
     variant for variants in SUPPORTED.values() for variant in variants)

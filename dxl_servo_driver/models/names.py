@@ -8,12 +8,13 @@ leaves this list when the catalogue supports it.  Nothing is read at run time.
 
 # model number -> (name, what it is)
 OTHER_MODELS: dict[int, tuple[str, str]] = {
-    # Protocol 1.0 models the e-manual documents without the datasheet figures a joint needs
-    # (DX-113: no stall current; DX-116: no stall current nor no-load speed).
-    113: ('DX-113', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current'),
+    # A Protocol 1.0 model the e-manual documents without the datasheet figures a joint needs
+    # (DX-116: stall torque only, no stall current nor no-load speed, and no later model with
+    # its 142.5:1 gear to borrow them from).
     116: ('DX-116', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current '
                     'and speed'),
-    # The first RH-P12-RN firmware: the old PRO layout (Torque Enable at 562), no SDK file.
-    35073: ('RH-P12-RN', 'a ROBOTIS gripper on its first firmware (the RH-P12-RN(A), model '
-                         '35074, is supported)'),
+    # The L42-10-S300-R on the original PRO firmware: its e-manual page contradicts itself
+    # (models.pro_legacy says how) and dynamixel-workbench's table differs from it.
+    35072: ('L42-10-S300-R', 'a DYNAMIXEL PRO whose published control table contradicts '
+                             'itself'),
 }

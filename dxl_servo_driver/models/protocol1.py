@@ -1,5 +1,5 @@
 """
-The Protocol 1.0 models: AX, RX, EX-106+, DX-117 and the MX on their 1.0 firmware, as data.
+The Protocol 1.0 models: AX, RX, EX-106+, DX-113/117 and the MX on their 1.0 firmware, as data.
 
 One layout for all (one-byte addresses, EEPROM 0..23, RAM from Torque Enable at 24), each
 family adding its own items: the MX its PID gains in place of the compliance margins and
@@ -43,9 +43,9 @@ Instructions: no Protocol 1.0 model answers REBOOT (the e-manual's 1.0 instructi
 dynamixel-sdk's 1.0 handler have none): reboot False. BULK_READ: the MX and the EX-106+ only.
 
 Sources: ROBOTIS e-manual control tables and specifications of the AX-12A, AX-12W, AX-18A,
-RX-10, RX-24F, RX-28, RX-64, EX-106+, DX-117, MX-12W, MX-28, MX-64 and MX-106 (docs/en/dxl/..,
-the Korean pages where the English ones lack an item), its Protocol 1.0 page and its shared
-control-table texts (_includes/en/dxl/control_table_*.md); dynamixel-workbench's
+RX-10, RX-24F, RX-28, RX-64, EX-106+, DX-113, DX-117, MX-12W, MX-28, MX-64 and MX-106
+(docs/en/dxl/.., the Korean pages where the English ones lack an item), its Protocol 1.0 page
+and its shared control-table texts (_includes/en/dxl/control_table_*.md); dynamixel-workbench's
 dynamixel_item.cpp for the cross-check of addresses and sizes. Where they disagree, the choice
 is commented at the figure.
 """
@@ -265,6 +265,15 @@ AX_RX_DX: tuple[Model, ...] = (
     # 50..250 is kept.
     _pot(64, 'RX-64', 'RX', baud=34, temperature=(80, 100), voltage=_RX_V, compliance=(1, 32),
          physics=datasheet(200.0, 18.5, ((18.5, 5.3, 2.6, 64),), _ONE.format('RX-64', 14.8))),
+    # DX-113: its page gives 1.0 N.m and 54 rpm at 12 V, no stall current. The RX-10, the
+    # RX model that followed it at the same 54 rpm at 12 V and near the same gear (193:1), has
+    # 1.3 N.m at 0.8 A: its 1.625 N.m/A is assumed, 1.0 N.m at 0.62 A. Its voltage limits cite
+    # an older text: the DX-117's 50..250 range is kept beside its published 60/190.
+    _pot(113, 'DX-113', 'DX', baud=34, temperature=(85, 100), voltage=_RX_V,
+         compliance=(0, 32), wheel=False, physics=datasheet(
+             192.6, 12.0, ((12.0, 1.0, 0.62, 54),),
+             _ONE.format('DX-113', 11.1) + '; no stall current published: the RX-10 torque '
+             'constant 1.3 N.m / 0.8 A (same 54 rpm at 12 V, 193:1) assumed')),
     _pot(117, 'DX-117', 'DX', baud=34, temperature=(80, 100), voltage=_RX_V, compliance=(1, 32),
          wheel=False, physics=datasheet(192.6, 18.5, ((18.5, 3.7, 1.9, 85),),
                                         _ONE.format('DX-117', 14.8))),
