@@ -28,8 +28,10 @@ def driver_owned(name: str) -> bool:
 
 # Registers a configuration or write_register may never set, and why.
 REFUSED_REGISTERS: dict[str, str] = {
-    'protocol_version': 'the driver speaks Protocol 2.0 only: 1 would switch the servo to '
-                        'Protocol 1.0, after which it no longer answers the driver',
+    'protocol_version': "a servo's protocol is the configuration's (<joint>.protocol): "
+                        'switched while the node runs, the servo would stop answering in the '
+                        'protocol it is spoken to (set it off the bus: scan says what each '
+                        'servo speaks)',
 }
 
 
@@ -41,9 +43,15 @@ def writable_register(model: Model, name: str, runtime: bool = False) -> Item:
     item = model.item(name)
     if item.access != 'RW':
         raise ValueError(f'register {name!r} is read-only')
-    if name in REFUSED_REGISTERS:
-        raise ValueError(f'register {name!r} cannot be written: {REFUSED_REGISTERS[name]}')
-    if driver_owned(name):
+    # By the XM430 manual's name of what it is: the Y's Protocol Type is protocol_version.
+    role = model.role_of(item.name)
+    if role in REFUSED_REGISTERS:
+        raise ValueError(f'register {name!r} cannot be written: {REFUSED_REGISTERS[role]}')
+    if not model.mode_register and role in ('min_position_limit', 'max_position_limit'):
+        raise ValueError(f'register {name!r} is the mode of the {model.name} (its angle limits: '
+                         'both 0 is wheel mode): use set_operating_mode, and '
+                         '<joint>.min_position/max_position for the joint limits')
+    if driver_owned(role) or role == model.mode_register:
         if runtime:
             raise ValueError(f'{name} is managed by the driver: use the set_torque / '
                              'set_operating_mode / command interfaces')

@@ -129,3 +129,17 @@ def test_a_servo_that_lost_its_power_is_found_and_restored(h: NodeHarness, name:
     h.wait_reg(IDS[name], 'torque_enable', lambda value: value == 1, timeout_s=15.0)
     assert servo.restarts == before + 1
     h.joint_states.wait(lambda m: name in m.name, timeout_s=10.0)
+
+
+@pytest.mark.parametrize('name, register, reason', [
+    ('mx64', 'protocol_version', 'would stop answering'),
+    ('ym070', 'protocol_type', 'would stop answering'),    # the Y's name for it
+    ('ax12', 'cw_angle_limit', 'is the mode of the AX-12A'),
+    ('xl320', 'control_mode', 'managed by the driver'),
+])
+def test_what_would_take_a_servo_off_the_bus_or_its_mode_is_refused(
+        h: NodeHarness, name: str, register: str, reason: str) -> None:
+    before = h.reg(IDS[name], register)
+    response = h.call('write_register', name=name, register_name=register, value=1)
+    assert not response.success and reason in response.message, response.message
+    assert h.reg(IDS[name], register) == before

@@ -226,6 +226,13 @@ class Model:
                 f'{self.label} has no control-table item starting at address {address!r}'
             ) from None
 
+    def role_of(self, name: str) -> str:
+        """Return the XM430 manual's name of the item this table calls name (or name)."""
+        for role, own in self.roles.items():
+            if own == name:
+                return role
+        return name
+
     def lookup(self, key: str | int) -> Item:
         """Return the item with this name or start address."""
         if isinstance(key, str):
