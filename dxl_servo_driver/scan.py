@@ -1,13 +1,16 @@
 """
 `scan`: find the Dynamixel servos on a serial port, at every baud rate, and describe them.
 
-  scan --port /dev/ttyUSB0 [--baud B ...] [--ids ID ...] [--output FILE]
-       [--protocol-timeout-ms MS]
+  scan --port /dev/ttyUSB0 [--baud B ...] [--ids ID ...] [--protocol 1.0|2.0|both]
+       [--output FILE] [--protocol-timeout-ms MS]
 
-At each baud rate (by default every one of the servo's baud table, the most common first) it
-sends a broadcast PING, or with --ids pings those ids one by one, then reads each servo's firmware
-version, operating mode and hardware error status. Progress goes to stderr; stdout gets one line
-per servo found. With --output it writes a parameter file the driver node runs as it is.
+At each baud rate (by default every one some supported model takes, the most common first) it
+looks for servos in both protocols: a Protocol 2.0 broadcast PING (or, with --ids, those ids one
+by one), then a Protocol 1.0 PING of every id (1.0 has no broadcast ping; --ids narrows it), and
+reads each servo's firmware version, operating mode and hardware error status in the protocol it
+answered in. Progress goes to stderr; stdout gets one line per servo found, saying its protocol.
+With --output it writes a parameter file the driver node runs as it is (a joint on the other
+protocol than the bus's says so: `<joint>.protocol`).
 
 Exit status: 0 servos found (and the file written), 1 no servo found, 2 bad arguments, 3 the port
 cannot be opened or was lost, 4 the parameter file cannot be written, 130 interrupted.
@@ -24,7 +27,7 @@ from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set,
 
 from dxl_servo_driver import config
 from dxl_servo_driver import models
-from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
@@ -53,15 +56,24 @@ READ_ATTEMPTS = 3
 SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
 LINUX_LATENCY_TIMER_MS = 16.0   # what an FTDI adapter's latency timer is unless set
 HINT = ('Usual causes: the servos have no power (the LED blinks once at power-up); they use a '
-        'baud rate not tried (--baud) or an id not tried (--ids); they speak Protocol 1.0 '
-        '(set protocol_version to 2, e.g. with Dynamixel Wizard); the data line or the adapter '
-        '(U2D2) is miswired; or the replies come later than --protocol-timeout-ms (USB latency '
-        'timer: install udev/99-dxl-servo-driver.rules to set it to 1 ms).')
+        'baud rate not tried (--baud), an id not tried (--ids) or a protocol not tried '
+        '(--protocol); the data line or the adapter (U2D2) is miswired; or the replies come '
+        'later than --protocol-timeout-ms (USB latency timer: install '
+        'udev/99-dxl-servo-driver.rules to set it to 1 ms).')
+# A Protocol 1.0 sweep pings every id: each waits this beyond the adapter's latency timer (the
+# whole --protocol-timeout-ms per id would make a sweep of 253 ids last 13 s per baud).
+SWEEP_SLACK_MS = 3.0
+PROTOCOLS = {'1.0': (1.0,), '2.0': (2.0,), 'both': (2.0, 1.0)}
+
+
+def all_bauds() -> List[int]:
+    """Return every baud rate some supported model takes, ascending."""
+    return sorted({bps for model in models.ALL_MODELS for bps in model.bauds.values()})
 
 
 def default_bauds() -> List[int]:
-    """Return every baud rate of the servo's table, in the order a scan tries them."""
-    rest = sorted(b for b in xm430.BAUD_RATES.values() if b not in PREFERRED_BAUDS and b != 9600)
+    """Return every baud rate some supported model takes, in the order a scan tries them."""
+    rest = [b for b in all_bauds() if b not in PREFERRED_BAUDS and b != 9600]
     return list(PREFERRED_BAUDS) + rest + [9600]
 
 
@@ -89,6 +101,10 @@ class FoundServo:
     firmware_version: Optional[int] = None
     operating_mode_raw: Optional[int] = None
     hardware_error_status: Optional[int] = None
+    protocol: float = 2.0
+    # The mode by name where the table says it otherwise than the XM430 manual's numbers (the
+    # XL-320's Control Mode, a Protocol 1.0 table's angle limits); None: from the raw value.
+    mode: Optional[str] = None
 
     @property
     def known_model(self) -> bool:
@@ -103,6 +119,8 @@ class FoundServo:
     @property
     def operating_mode(self) -> Optional[str]:
         """Return the operating mode by name, None if unread or not a valid mode."""
+        if self.mode is not None:
+            return self.mode or None   # '': read, and not one of its modes
         if self.operating_mode_raw is None:
             return None
         return mode_name(self.operating_mode_raw)
@@ -121,6 +139,8 @@ def describe(servo: FoundServo) -> str:
     fw = servo.firmware_version
     parts.append(f'firmware {fw}' if fw is not None else 'firmware ? (no reply)')
     parts.append(f'{servo.baud_bps} bps')
+    if servo.protocol != 2.0:
+        parts.append(f'Protocol {servo.protocol:.1f}')
     if not servo.known_model:
         parts.append('mode not read (unknown control table)')
         parts.append('hardware errors: not read')
@@ -132,7 +152,9 @@ def describe(servo: FoundServo) -> str:
             parts.append(f'mode {servo.operating_mode or f"{raw} (not a valid mode)"}')
         errors = servo.hardware_errors
         status = servo.hardware_error_status
-        if errors is None or status is None:
+        if not servo.table.has('hardware_error_status'):
+            parts.append('hardware errors: not in its table (each reply says them)')
+        elif errors is None or status is None:
             parts.append('hardware errors: ? (no reply)')
         elif status == 0:
             parts.append('hardware errors: none')
@@ -162,16 +184,34 @@ def _read_register(bus: Bus, servo_id: int, item: models.Item) -> Optional[int]:
     return None
 
 
-def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int) -> FoundServo:
-    # Firmware Version (6) is at the same address on every Protocol 2.0 servo; the others are
-    # read only from a model whose control table is known.
-    firmware = _read_register(bus, servo_id, MANUAL_TABLE.item('firmware_version'))
+def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int,
+                    protocol: float = 2.0) -> FoundServo:
+    # The firmware version is at 6 on every X-style table; a known model says where its own
+    # is (2 on the Protocol 1.0 tables); the rest is read only from a known control table.
+    if model_number in models.SUPPORTED:
+        where = models.model_for(model_number).item('firmware_version')
+    else:
+        where = MANUAL_TABLE.item('firmware_version')
+    firmware = _read_register(bus, servo_id, where)
     if model_number not in models.SUPPORTED:
-        return FoundServo(servo_id, baud_bps, model_number, firmware)
+        return FoundServo(servo_id, baud_bps, model_number, firmware, protocol=protocol)
     table = models.model_for(model_number, firmware)
-    mode = _read_register(bus, servo_id, table.item('operating_mode'))
-    errors = _read_register(bus, servo_id, table.item('hardware_error_status'))
-    return FoundServo(servo_id, baud_bps, model_number, firmware, mode, errors)
+    mode_raw: Optional[int] = None
+    mode: Optional[str] = None
+    if table.mode_register:
+        mode_raw = _read_register(bus, servo_id, table.item(table.mode_register))
+        names = {number: name for name, number in table.modes.items()}
+        mode = names.get(mode_raw, '') if mode_raw is not None else None
+    else:   # a Protocol 1.0 table: its angle limits are its mode
+        low = _read_register(bus, servo_id, table.item('min_position_limit'))
+        high = _read_register(bus, servo_id, table.item('max_position_limit'))
+        if low is not None and high is not None:
+            mode = table.angle_limit_mode(low, high)
+            mode_raw = table.modes[mode]
+    errors = (_read_register(bus, servo_id, table.item('hardware_error_status'))
+              if table.has('hardware_error_status') else None)
+    return FoundServo(servo_id, baud_bps, model_number, firmware, mode_raw, errors, protocol,
+                      mode)
 
 
 def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str]) -> Dict[int, int]:
@@ -192,18 +232,53 @@ def set_baud(bus: Bus, baud_bps: int) -> None:
     bus.set_baud(baud_bps)
 
 
+def _sweep_1(bus: Bus, ids: Sequence[int], sweep_s: float, warnings: List[str]
+             ) -> Dict[int, int]:
+    """Ping ids in Protocol 1.0, each with a short deadline; return {id: model number}."""
+    found: Dict[int, int] = {}
+    waited = bus.latency_timer_s
+    bus.latency_timer_s = min(waited, sweep_s)
+    try:
+        for servo_id in ids:
+            bus.speak(servo_id, FRAMERS[1.0])
+            try:
+                found[servo_id] = bus.ping(servo_id, probe=True)
+            except CorruptReply:
+                warnings.append(f'id {servo_id} at {bus.baud_bps} bps (Protocol 1.0): garbled '
+                                'replies (two servos with the same id, or a noisy line?)')
+            except CommError:
+                pass
+            if servo_id not in found:
+                bus.speak(servo_id, FRAMERS[2.0])
+    finally:
+        bus.latency_timer_s = waited
+    return found
+
+
 def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None,
              progress: Callable[[str], None] = lambda line: None,
-             found_one: Callable[[FoundServo], None] = lambda servo: None) -> ScanResult:
+             found_one: Callable[[FoundServo], None] = lambda servo: None,
+             protocols: Sequence[float] = (2.0,), sweep_s: float = 0.02) -> ScanResult:
     """
-    Look for servos at each baud rate in turn; return what answered.
+    Look for servos at each baud rate in turn, in each protocol; return what answered.
 
-    Without ids a broadcast PING finds them (when its replies are garbled, every id is pinged
-    one by one instead); with ids only those are pinged. progress gets one line per step,
-    found_one each servo as soon as it has been read. PortError propagates.
+    Protocol 2.0: without ids a broadcast PING finds them (when its replies are garbled, every id
+    is pinged one by one instead); with ids only those are pinged. Protocol 1.0 has no broadcast
+    ping: every id (or those given) is pinged, each waiting sweep_s beyond its wire time.
+    progress gets one line per step, found_one each servo as soon as it has been read.
+    PortError propagates.
     """
     result = ScanResult([], [], [])
     for baud_bps in bauds:
+        if 2.0 not in protocols:
+            try:
+                set_baud(bus, baud_bps)
+            except (PortError, ValueError) as exc:
+                result.warnings.append(f'the adapter refused {baud_bps} bps ({exc}); skipped')
+                continue
+            result.bauds_tried.append(baud_bps)
+            _scan_1(bus, baud_bps, ids, sweep_s, result, progress, found_one)
+            continue
         how = 'broadcast ping' if ids is None else f'ping of {len(ids)} id(s)'
         progress(f'scanning {baud_bps} bps ({how}) ...')
         try:
@@ -225,7 +300,23 @@ def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None
             servo = _describe_servo(bus, servo_id, models[servo_id], baud_bps)
             result.servos.append(servo)
             found_one(servo)
+        if 1.0 in protocols:
+            _scan_1(bus, baud_bps, ids, sweep_s, result, progress, found_one)
     return result
+
+
+def _scan_1(bus: Bus, baud_bps: int, ids: Optional[Sequence[int]], sweep_s: float,
+            result: ScanResult, progress: Callable[[str], None],
+            found_one: Callable[[FoundServo], None]) -> None:
+    """Look for Protocol 1.0 servos at the bus's baud rate (scan_bus)."""
+    asked = list(range(MAX_ID + 1)) if ids is None else list(ids)
+    progress(f'scanning {baud_bps} bps, Protocol 1.0 (ping of {len(asked)} id(s)) ...')
+    found = _sweep_1(bus, asked, sweep_s, result.warnings)
+    for servo_id in sorted(found):
+        servo = _describe_servo(bus, servo_id, found[servo_id], baud_bps, 1.0)
+        bus.speak(servo_id, FRAMERS[2.0])
+        result.servos.append(servo)
+        found_one(servo)
 
 
 def _plural(count: int, word: str) -> str:
@@ -263,10 +354,12 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
     ids: Set[int] = set()
     for servo in sorted(servos, key=lambda s: (s.baud_bps != baud_bps, s.servo_id, s.baud_bps)):
         if servo.baud_bps != baud_bps:
-            raw = {bps: raw for raw, bps in xm430.BAUD_RATES.items()}[baud_bps]
+            raws = {} if not servo.known_model else {
+                bps: raw for raw, bps in servo.table.bauds.items()}
+            how = (f'set its baud_rate register to {raws[baud_bps]} ({baud_bps} bps)'
+                   if baud_bps in raws else f'its model cannot run at {baud_bps} bps')
             left_out.append(f'id {servo.servo_id} answered at {servo.baud_bps} bps, not '
-                            f'{baud_bps}: set its baud_rate register to {raw} ({baud_bps} bps) '
-                            'or run a second node at its baud')
+                            f'{baud_bps}: {how} or run a second node at its baud')
         elif not servo.known_model:
             left_out.append(f'id {servo.servo_id}: '
                             f'{models.unsupported_reason(servo.model_number)}')
@@ -281,6 +374,7 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
             params[f'{joint}.id'] = servo.servo_id
             params[f'{joint}.model'] = servo.table.name
             params[f'{joint}.operating_mode'] = servo.operating_mode
+            params[f'{joint}.protocol'] = servo.protocol
             # The joint as the robot sees it: the servo's angle until the user says otherwise.
             params[f'{joint}.offset'] = 0.0
             params[f'{joint}.reverse'] = False
@@ -288,6 +382,12 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
     if not joints:
         raise ValueError('no servo the node could drive (' + '; '.join(left_out) + ')')
     params['joints'] = joints
+    # The bus speaks 2.0 unless every joint is on 1.0; a joint on the other one says so.
+    bus_protocol = 1.0 if all(params[f'{j}.protocol'] == 1.0 for j in joints) else 2.0
+    params['protocol'] = bus_protocol
+    for joint in joints:
+        if params[f'{joint}.protocol'] == bus_protocol:
+            del params[f'{joint}.protocol']
     config.validate(params)
     if left_out:
         comments.append('Not configured below:')
@@ -309,6 +409,8 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
     lines.append('  ros__parameters:')
     lines.append(f'    port: {_yaml_string(params["port"])}')
     lines.append(f'    baud_rate: {params["baud_rate"]}')
+    if params.get('protocol', 2.0) != 2.0:
+        lines.append(f'    protocol: {params["protocol"]}')
     if 'latency_timer' in params:
         source = 'read from the adapter' if latency_read else \
             'not readable here: the Linux default (1 with our udev rule)'
@@ -319,6 +421,8 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
         lines.append(f'      id: {params[joint + ".id"]}')
         lines.append(f'      model: {params[joint + ".model"]}')
         lines.append(f'      operating_mode: {params[joint + ".operating_mode"]}')
+        if joint + '.protocol' in params:
+            lines.append(f'      protocol: {params[joint + ".protocol"]}  # not the bus\'s')
         if joint + '.offset' in params:
             lines.append(f'      offset: {params[joint + ".offset"]!r}  # rad: the URDF zero in '
                          "the servo's radians (raw 2048 = 0)")
@@ -351,13 +455,16 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
-    bauds = sorted(xm430.BAUD_RATES.values())
-    parser = _Parser(prog='scan', description='Find Dynamixel servos (Protocol 2.0) on a port.')
+    bauds = all_bauds()
+    parser = _Parser(prog='scan', description='Find Dynamixel servos (Protocol 2.0 and 1.0) on '
+                                              'a port.')
     parser.add_argument('--port', required=True, help='serial device, e.g. /dev/ttyUSB0')
     parser.add_argument('--baud', type=int, nargs='+', metavar='B',
                         help=f'baud rates to try (default: all of {bauds})')
     parser.add_argument('--ids', type=int, nargs='+', metavar='ID',
                         help=f'ping only these ids (0..{MAX_ID}) instead of a broadcast ping')
+    parser.add_argument('--protocol', choices=tuple(PROTOCOLS), default='both',
+                        help='the protocols to look for servos in (default both)')
     parser.add_argument('--output', metavar='FILE',
                         help='write a parameter file for the node with the servos found')
     parser.add_argument('--protocol-timeout-ms', type=float, default=DEFAULT_PROTOCOL_TIMEOUT_MS,
@@ -368,7 +475,7 @@ def _parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
     if args.baud is not None:
         bad = [b for b in args.baud if b not in bauds]
         if bad:
-            parser.error(f'--baud {bad[0]}: the servo supports {bauds}')
+            parser.error(f'--baud {bad[0]}: no supported model runs at it ({bauds})')
         args.baud = list(dict.fromkeys(args.baud))
     if args.ids is not None:
         bad = [i for i in args.ids if not 0 <= i <= MAX_ID]
@@ -461,7 +568,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(describe(servo), file=out, flush=True)
 
     try:
-        result = scan_bus(bus, bauds, args.ids, progress, found_one)
+        result = scan_bus(bus, bauds, args.ids, progress, found_one, PROTOCOLS[args.protocol],
+                          ((latency_ms if latency_ms is not None else LINUX_LATENCY_TIMER_MS)
+                           + SWEEP_SLACK_MS) / 1000.0)
     except PortError as exc:
         print(f'scan: error: {exc}', file=err)
         return EXIT_PORT
@@ -476,6 +585,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not result.servos:
         what = 'a broadcast ping' if args.ids is None else (
             'pings of id(s) ' + ' '.join(str(i) for i in args.ids))
+        what += f', Protocol {args.protocol}'.replace('both', '2.0 and 1.0')
         print(f'scan: no servo answered on {args.port} ({what} at {tried} bps).\n{HINT}',
               file=err)
         return EXIT_NOT_FOUND
