@@ -355,6 +355,9 @@ def test_model_named() -> None:
     assert model_named('XW430-T200') is model_for(1280)
     assert model_named('XC330-M288') is model_for(1240)
     assert model_named('XM335-T323-T') is model_for(1710)
+    # The ball-bearing XC430 report the plain ones' numbers (their e-manual pages).
+    assert model_named('XC430-T150BB-T') is model_for(1070) is model_named('xc430-w150bb')
+    assert model_named('XC430-W240BB') is model_for(1080) is model_named('XC430-T240BB')
     with pytest.raises(ModelError, match='L42-10-S300-R'):
         model_named('L42-10-S300-R')
 

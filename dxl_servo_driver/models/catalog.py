@@ -464,6 +464,11 @@ SUPPORTED: dict[int, tuple[Model, ...]] = _index(_MODELS)
 ALL_MODELS: tuple[Model, ...] = tuple(
     variant for variants in SUPPORTED.values() for variant in variants)
 _BY_NAME: dict[str, int] = {model.name.upper(): model.number for model in ALL_MODELS}
+# Names sold beside a supported model that report its number and table: the XC430 with ball
+# bearings (their pages: model 1070 and 1080, 'other specifications are the same'; sold as
+# -T150BB/-T240BB too).
+_BY_NAME.update({'XC430-W150BB': 1070, 'XC430-T150BB': 1070, 'XC430-W240BB': 1080,
+                 'XC430-T240BB': 1080})
 _PROTOCOLS = ' and '.join(
     f'Protocol {version:.1f}' for version in sorted({model.protocol for model in ALL_MODELS}))
 
