@@ -143,9 +143,9 @@ def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> 
 @needs_sdk
 def test_the_sdk_lists_every_supported_number_but_one() -> None:
     listed = _listed()
-    # XW430-T200: only the e-manual numbers it; Protocol 1.0 and the original PRO firmware:
-    # no SDK file at all.
-    assert set(SUPPORTED) - set(listed) == {1280} | NO_SDK_FILE
+    # XW430-T200 and XM335-T323: only the e-manual numbers them; Protocol 1.0 and the original
+    # PRO firmware: no SDK file at all.
+    assert set(SUPPORTED) - set(listed) == {1280, 1710} | NO_SDK_FILE
     assert all(number in SUPPORTED or number in OTHER_MODELS for number in listed)
 
 

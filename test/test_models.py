@@ -40,6 +40,10 @@ SDK_ALIASES = {
 EXTRAS = {'startup_configuration', 'backup_ready'}
 SEED_ONLY = {'acceleration_limit'}
 
+# X models no SDK model file describes: checked against their e-manual page below instead.
+NO_MODEL_FILE = {1710}
+FILED = tuple(model for model in X_MODELS if model.number not in NO_MODEL_FILE)
+
 SIGNED = {'homing_offset', 'goal_pwm', 'goal_current', 'goal_velocity', 'goal_position',
           'present_pwm', 'present_current', 'present_load', 'present_velocity',
           'present_position', 'velocity_trajectory', 'position_trajectory'}
@@ -104,7 +108,7 @@ def _squash(text: str) -> str:
 
 
 @needs_sdk
-@pytest.mark.parametrize('model', X_MODELS, ids=_label)
+@pytest.mark.parametrize('model', FILED, ids=_label)
 def test_every_model_file_row_is_in_the_table(model: Model) -> None:
     path = _sdk_file(model)
     assert path.is_file(), f'{model.label}: no SDK model file {path.name}'
@@ -135,6 +139,9 @@ def test_dynamixel_model_names_the_files_of_our_models() -> None:
             continue   # test_model_families.py
         if number in listed:
             assert listed[number] == f'{_stem(newest)}.model', newest.label
+        elif number in NO_MODEL_FILE:
+            # XM335-T323: neither number nor file in the SDK; the number is the e-manual's.
+            assert not (SDK / f'{_stem(newest)}.model').is_file()
         else:
             # XW430-T200: the file ships, the number is only in the e-manual.
             assert number == 1280 and (SDK / f'{_stem(newest)}.model').is_file()
@@ -337,7 +344,7 @@ def test_refused_models_are_named(number: int, names: tuple[str, ...]) -> None:
 
 def test_supported_models_have_no_reason_to_refuse() -> None:
     assert all(unsupported_reason(number) == '' for number in SUPPORTED)
-    assert len(X_MODELS) == 38 and len({model.number for model in X_MODELS}) == 32
+    assert len(X_MODELS) == 39 and len({model.number for model in X_MODELS}) == 33
     assert set(X_MODELS) <= set(ALL_MODELS)
 
 
@@ -347,8 +354,12 @@ def test_model_named() -> None:
     assert model_named('xh540-w270-t/r') is model_for(1100)
     assert model_named('XW430-T200') is model_for(1280)
     assert model_named('XC330-M288') is model_for(1240)
-    with pytest.raises(ModelError, match='DX-116'):
-        model_named('DX-116')
+    assert model_named('XM335-T323-T') is model_for(1710)
+    # The ball-bearing XC430 report the plain ones' numbers (their e-manual pages).
+    assert model_named('XC430-T150BB-T') is model_for(1070) is model_named('xc430-w150bb')
+    assert model_named('XC430-W240BB') is model_for(1080) is model_named('XC430-T240BB')
+    with pytest.raises(ModelError, match='L42-10-S300-R'):
+        model_named('L42-10-S300-R')
 
 
 def test_item_lookups_fail_clearly() -> None:
@@ -368,3 +379,69 @@ def test_physics_between_and_beyond_the_published_points() -> None:
     assert middle.stall_torque_nm == pytest.approx((4.1 + 4.8) / 2)
     assert middle.no_load_speed_rpm == pytest.approx((46 + 57) / 2)
     assert physics.at(5.0) == physics.points[0] and physics.at(30.0) == physics.points[-1]
+
+
+# --- XM335-T323: its e-manual page as the oracle (no SDK model file) -------------------------
+
+# (address, size) of every item the page lists, indirect entries aside.
+XM335_PAGE = {
+    'model_number': (0, 2), 'model_information': (2, 4), 'firmware_version': (6, 1),
+    'id': (7, 1), 'baud_rate': (8, 1), 'return_delay_time': (9, 1), 'drive_mode': (10, 1),
+    'operating_mode': (11, 1), 'secondary_id': (12, 1), 'protocol_version': (13, 1),
+    'homing_offset': (20, 4), 'moving_threshold': (24, 4), 'temperature_limit': (31, 1),
+    'max_voltage_limit': (32, 2), 'min_voltage_limit': (34, 2), 'pwm_limit': (36, 2),
+    'current_limit': (38, 2), 'velocity_limit': (44, 4), 'max_position_limit': (48, 4),
+    'min_position_limit': (52, 4), 'startup_configuration': (60, 1), 'pwm_slope': (62, 1),
+    'shutdown': (63, 1), 'torque_enable': (64, 1), 'led': (65, 1),
+    'status_return_level': (68, 1), 'registered_instruction': (69, 1),
+    'hardware_error_status': (70, 1), 'velocity_i_gain': (76, 2), 'velocity_p_gain': (78, 2),
+    'position_d_gain': (80, 2), 'position_i_gain': (82, 2), 'position_p_gain': (84, 2),
+    'feedforward_2nd_gain': (88, 2), 'feedforward_1st_gain': (90, 2), 'bus_watchdog': (98, 1),
+    'goal_pwm': (100, 2), 'goal_current': (102, 2), 'goal_velocity': (104, 4),
+    'profile_acceleration': (108, 4), 'profile_velocity': (112, 4), 'goal_position': (116, 4),
+    'realtime_tick': (120, 2), 'moving': (122, 1), 'moving_status': (123, 1),
+    'present_pwm': (124, 2), 'present_current': (126, 2), 'present_velocity': (128, 4),
+    'present_position': (132, 4), 'velocity_trajectory': (136, 4),
+    'position_trajectory': (140, 4), 'present_input_voltage': (144, 2),
+    'present_temperature': (146, 1), 'backup_ready': (147, 1),
+}
+# name -> initial, as the page gives them.
+XM335_INITIALS = {
+    'model_number': 1710, 'baud_rate': 3, 'drive_mode': 0, 'operating_mode': 3,
+    'protocol_version': 2, 'moving_threshold': 10, 'temperature_limit': 70,
+    'max_voltage_limit': 140, 'min_voltage_limit': 55, 'pwm_limit': 885, 'current_limit': 910,
+    'velocity_limit': 280, 'max_position_limit': 3072, 'min_position_limit': 1024,
+    'pwm_slope': 255, 'shutdown': 52, 'velocity_i_gain': 1800, 'velocity_p_gain': 50,
+    'position_p_gain': 2000, 'indirect_address_1': 224, 'indirect_address_28': 251,
+}
+
+
+def test_xm335_against_its_page() -> None:
+    model = model_for(1710)
+    ours = {item.name: (item.address, item.size) for item in model.items
+            if not item.name.startswith('indirect_')}
+    assert ours == XM335_PAGE
+    for name, initial in XM335_INITIALS.items():
+        assert model.item(name).initial == initial, name
+    # 28 entries: addresses 168..222, data 224..251, any RAM address 64..251.
+    assert model.indirect[0] == (168, 224) and model.indirect[-1] == (222, 251)
+    assert len(model.indirect) == 28 and model.table_end == 252
+    assert model.item('indirect_address_1').maximum == 251
+    assert (model.item('protocol_version').maximum, model.item('baud_rate').maximum) == (22, 6)
+    assert model.item('current_limit').unit == '1 mA' and model.current_unit_a == 0.001
+    assert model.item('velocity_limit').maximum == 2047
+    assert model.item('pwm_slope').unit == '3.955 mV/ms'
+    assert max(model.bauds.values()) == 4_000_000 and set(model.modes) == MODE_NAMES
+    assert len(SUPPORTED[1710]) == 1 and model.fast_sync_read_firmware == 46
+
+
+def test_xm335_physics_is_the_copied_datasheet() -> None:
+    physics = model_for(1710).physics
+    assert physics.gear_ratio == 323.04 and physics.nominal_voltage_v == 11.1
+    assert [(p.voltage_v, p.stall_torque_nm, p.stall_current_a, p.no_load_speed_rpm)
+            for p in physics.points] == [(11.1, 1.03, 0.80, 53)]
+    # The stated cross-check: the XC330-T288 at 11.1 V scaled by the gear ratios.
+    sibling = model_for(1220).physics
+    assert physics.nominal.stall_torque_nm == pytest.approx(
+        sibling.at(11.1).stall_torque_nm * 323.04 / sibling.gear_ratio, abs=0.005)
+    assert 'third-party' in physics.source

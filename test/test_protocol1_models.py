@@ -196,9 +196,10 @@ WB_MX.update({'multi_turn_offset': (20, 2), 'resolution_divider': (22, 1), 'd_ga
 # items_EXTMX (MX-64, MX-106): plus current and torque control.
 WB_EXTMX = {**WB_MX, 'current': (68, 2), 'torque_ctrl_mode_enable': (70, 1),
             'goal_torque': (71, 2)}
+# The DX-116's e-manual table is the DX-113's row for row: held to the same AX rows.
 WORKBENCH = {12: WB_AX, 300: WB_AX, 18: WB_AX, 10: WB_AX, 24: WB_AX, 28: WB_AX, 64: WB_AX,
-             113: WB_AX, 117: WB_AX, 107: WB_EX, 360: WB_MX, 29: WB_MX, 310: WB_EXTMX,
-             320: WB_EXTMX}
+             113: WB_AX, 116: WB_AX, 117: WB_AX, 107: WB_EX, 360: WB_MX, 29: WB_MX,
+             310: WB_EXTMX, 320: WB_EXTMX}
 # Items the e-manual has and the workbench lacks: Realtime Tick (MX firmware 40/41 on),
 # the MX-106's Drive Mode.
 BEYOND_WORKBENCH = {'realtime_tick', 'drive_mode'}
@@ -222,6 +223,12 @@ EMANUAL = {
           'min_voltage_limit': (12, 1, 60), 'max_voltage_limit': (13, 1, 190),
           'cw_compliance_margin': (26, 1, 0), 'ccw_compliance_slope': (29, 1, 32),
           'punch': (48, 2, 32)},
+    116: {'model_number': (0, 2, 116), 'baud_rate': (4, 1, 34),
+          'return_delay_time': (5, 1, 250), 'ccw_angle_limit': (8, 2, 1023),
+          'temperature_limit': (11, 1, 85), 'min_voltage_limit': (12, 1, 60),
+          'max_voltage_limit': (13, 1, 190), 'max_torque': (14, 2, 1023),
+          'alarm_led': (17, 1, 36), 'cw_compliance_margin': (26, 1, 0),
+          'ccw_compliance_slope': (29, 1, 32), 'punch': (48, 2, 32)},
     117: {'model_number': (0, 2, 117), 'baud_rate': (4, 1, 34),
           'max_voltage_limit': (13, 1, 190), 'cw_compliance_margin': (26, 1, 1)},
     107: {'model_number': (0, 2, 107), 'ccw_angle_limit': (8, 2, 4095),
@@ -348,13 +355,27 @@ def test_units_differ_where_the_manual_says() -> None:
     assert model_named('mx-28') is model_for(29) and model_named('MX-28(2.0)') is model_for(30)
 
 
-def test_the_dx116_stays_refused_by_name_and_the_dx113_borrows_the_rx10_constant() -> None:
-    assert 116 not in SUPPORTED and OTHER_MODELS[116][0] == 'DX-116'
+def test_the_dx_models_borrow_what_their_pages_lack() -> None:
     dx113, rx10 = model_for(113), model_for(10)
     assert 113 not in OTHER_MODELS and dx113.modes == {'position': 3}
     assert dx113.torque_constant_nm_per_a == pytest.approx(rx10.torque_constant_nm_per_a,
                                                            rel=0.01)
     assert dx113.stall_torque_nm == 1.0 and dx113.physics.nominal.no_load_speed_rpm == 54
     assert dx113.physics.gear_ratio == 192.6 and 'assumed' in dx113.physics.source
+    # DX-116: the page's torques (2.1 N.m at 12 V, 2.9 at 16 V, 142.5:1); the DX-117's motor
+    # through the 142.5:1 gear for the current and the speed.
+    dx116, dx117 = model_for(116), model_for(117)
+    assert 116 not in OTHER_MODELS and dx116.modes == {'position': 3}
+    assert dx116.physics.gear_ratio == 142.5 and 'assumed' in dx116.physics.source
+    assert [(p.voltage_v, p.stall_torque_nm) for p in dx116.physics.points] == [
+        (12.0, 2.1), (16.0, 2.9)]
+    ratio = 142.5 / 192.6
+    for point in dx116.physics.points:
+        assert point.torque_constant_nm_per_a == pytest.approx(
+            dx117.torque_constant_nm_per_a * ratio, rel=0.01)
+        expected = 85 / 18.5 * point.voltage_v / ratio
+        assert point.no_load_speed_rpm == pytest.approx(expected, rel=0.005)
+    assert dx116.physics.nominal_voltage_v == 16.0 and dx116.protocol == 1.0
+    assert model_named('DX-116') is dx116
     for model in PROTOCOL1:
         assert model.number not in OTHER_MODELS

@@ -31,13 +31,13 @@ __all__ = ['ALL_MODELS', 'FAMILIES', 'MANUAL_DIFFERENCES', 'model_for', 'model_n
 
 X_FAMILIES: tuple[str, ...] = (
     'XM430/XH430/XD430', 'XM540/XH540/XD540', 'XW430/XW540', 'XL430/2XL430/XC430/2XC430',
-    'XL330/XC330')
+    'XL330/XC330/XM335')
 # The families as the refusal text and the README name them.
 FAMILIES: tuple[str, ...] = (
     *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)',
     'PRO (H42/H54/M42/M54/L54)', 'RH-P12-RN/RH-P12-RN(A)',
     'Y (YM070-210/YM080-230)', 'XL-320', 'AX-12A/12W/18A', 'RX-10/24F/28/64', 'EX-106+',
-    'DX-113/117', 'MX-12W/28/64/106(1.0)')
+    'DX-113/116/117', 'MX-12W/28/64/106(1.0)')
 
 SIX_MODES: dict[str, int] = modes.numbers(*modes.NAMES)
 # XL430/XC430 have no current sensing, hence no current nor current-based position mode.
@@ -145,6 +145,8 @@ class _Tuning:
     shutdown: int = 0x34
     velocity_max: int = 1023
     pwm_slope: tuple[int, str] | None = None  # X330: (initial, unit)
+    # Power-on values the page gives where they differ from the manual's layout (XM335).
+    initials: tuple[tuple[str, int], ...] = ()
 
 
 def _tuning_overrides(t: _Tuning, input_voltage: int) -> dict[str, dict[str, Value]]:
@@ -168,6 +170,8 @@ def _tuning_overrides(t: _Tuning, input_voltage: int) -> dict[str, dict[str, Val
              'position_p_gain')
     for name, gain in zip(names, t.gains):
         overrides[name] = {'initial': gain, 'maximum': GAIN_MAX}
+    for name, initial in t.initials:
+        overrides[name] = {'initial': initial}
     if t.current is not None:
         limit, milliamps = t.current
         unit = f'{milliamps:g} mA'
@@ -199,12 +203,12 @@ def _model(number: int, name: str, family: _Family, tuning: _Tuning, physics: Ph
         initial, unit = tuning.pwm_slope
         add.append(item('pwm_slope', 62, 1, 'RW', initial, 1, 255, unit=unit,
                         description='PWM Slope (rate the output PWM may change)'))
-    override: Overrides = {
-        **_tuning_overrides(tuning, round(physics.nominal_voltage_v * 10)),
-        **family.override,
-        'model_number': {'initial': number},
-        'firmware_version': {'initial': firmware},
-    }
+    override = _tuning_overrides(tuning, round(physics.nominal_voltage_v * 10))
+    # Merged per item: a family's range and a model's initial may touch the same item.
+    for key, changes in family.override.items():
+        override[key] = {**override.get(key, {}), **changes}
+    override['model_number'] = {'initial': number}
+    override['firmware_version'] = {'initial': firmware}
     base = (each for each in xm430.ITEMS if not is_indirect(each.name))
     items = build(base, remove=family.remove, add=add, override=override)
     milliamps = tuning.current[1] if tuning.current is not None else None
@@ -423,6 +427,24 @@ _MODELS: list[Model] = [
         pwm_slope=(140, '1.977 mV/ms')), _physics(
         288.35, 5.0, ((3.7, 0.69, 1.34, 59), (5.0, 0.93, 1.80, 81), (6.0, 1.10, 2.15, 97)),
         _SPEC.format('XC330-M288'))),
+    # --- XM335: the X330 electronics in a 323:1 finger actuator -------------------------------
+    # Its e-manual page as fixed (the first revision copied the X330 table): one table, 28
+    # indirect entries at 168/224 (no older firmware split is published for it; the
+    # simulated firmware is the X330's first with that block), 1 Mbps and a 1,024..3,072
+    # position window at power-on. Fast Sync Read from v46 as on the X330 is
+    # assumed (the Protocol 2.0 page seen does not list it; the driver gives Fast Sync up when
+    # a servo does not answer it).
+    _model(1710, 'XM335-T323', X330, _Tuning(
+        70, (55, 140), (910, 1.0), 280, (1800, 50, 0, 0, 2000), velocity_max=2047,
+        pwm_slope=(255, '3.955 mV/ms'),
+        initials=(('baud_rate', 3), ('max_position_limit', 3072),
+                  ('min_position_limit', 1024))), _physics(
+        323.04, 11.1, ((11.1, 1.03, 0.80, 53),),
+        'XM335-T323-T e-manual specifications, not in the stored e-manual data: as copied '
+        'by two independent third-party sources (a product catalogue: 323.04:1, 1.03 N.m at '
+        '0.80 A and 53 rpm at 11.1 V; a robot-hand project: 53 rpm); one voltage; they agree '
+        'with the XC330-T288 11.1 V figures scaled by 323.04/288.35 (0.92 -> 1.03 N.m)'),
+        banks=((168, 224, 28),), last_ram=251, firmware=X330_NEW_INDIRECT_FIRMWARE),
 ]
 
 
@@ -442,6 +464,11 @@ SUPPORTED: dict[int, tuple[Model, ...]] = _index(_MODELS)
 ALL_MODELS: tuple[Model, ...] = tuple(
     variant for variants in SUPPORTED.values() for variant in variants)
 _BY_NAME: dict[str, int] = {model.name.upper(): model.number for model in ALL_MODELS}
+# Names sold beside a supported model that report its number and table: the XC430 with ball
+# bearings (their pages: model 1070 and 1080, 'other specifications are the same'; sold as
+# -T150BB/-T240BB too).
+_BY_NAME.update({'XC430-W150BB': 1070, 'XC430-T150BB': 1070, 'XC430-W240BB': 1080,
+                 'XC430-T240BB': 1080})
 _PROTOCOLS = ' and '.join(
     f'Protocol {version:.1f}' for version in sorted({model.protocol for model in ALL_MODELS}))
 

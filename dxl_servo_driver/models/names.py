@@ -8,11 +8,6 @@ leaves this list when the catalogue supports it.  Nothing is read at run time.
 
 # model number -> (name, what it is)
 OTHER_MODELS: dict[int, tuple[str, str]] = {
-    # A Protocol 1.0 model the e-manual documents without the datasheet figures a joint needs
-    # (DX-116: stall torque only, no stall current nor no-load speed, and no later model with
-    # its 142.5:1 gear to borrow them from).
-    116: ('DX-116', 'a Protocol 1.0 DYNAMIXEL servo whose datasheet lacks the stall current '
-                    'and speed'),
     # The L42-10-S300-R on the original PRO firmware: its e-manual page contradicts itself
     # (models.pro_legacy says how) and dynamixel-workbench's table differs from it.
     35072: ('L42-10-S300-R', 'a DYNAMIXEL PRO whose published control table contradicts '

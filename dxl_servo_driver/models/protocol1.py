@@ -1,5 +1,5 @@
 """
-The Protocol 1.0 models: AX, RX, EX-106+, DX-113/117 and the MX on their 1.0 firmware, as data.
+The Protocol 1.0 models: AX, RX, EX-106+, DX-113/116/117, the MX on their 1.0 firmware: data.
 
 One layout for all (one-byte addresses, EEPROM 0..23, RAM from Torque Enable at 24), each
 family adding its own items: the MX its PID gains in place of the compliance margins and
@@ -43,11 +43,11 @@ Instructions: no Protocol 1.0 model answers REBOOT (the e-manual's 1.0 instructi
 dynamixel-sdk's 1.0 handler have none): reboot False. BULK_READ: the MX and the EX-106+ only.
 
 Sources: ROBOTIS e-manual control tables and specifications of the AX-12A, AX-12W, AX-18A,
-RX-10, RX-24F, RX-28, RX-64, EX-106+, DX-113, DX-117, MX-12W, MX-28, MX-64 and MX-106
+RX-10, RX-24F, RX-28, RX-64, EX-106+, DX-113, DX-116, DX-117, MX-12W, MX-28, MX-64 and MX-106
 (docs/en/dxl/.., the Korean pages where the English ones lack an item), its Protocol 1.0 page
 and its shared control-table texts (_includes/en/dxl/control_table_*.md); dynamixel-workbench's
-dynamixel_item.cpp for the cross-check of addresses and sizes. Where they disagree, the choice
-is commented at the figure.
+dynamixel_item.cpp for the cross-check of addresses and sizes; ROBOTIS's DX-series user's
+manual (2004) for the DX-116's motor. Where they disagree, the choice is commented at the figure.
 """
 
 from dataclasses import replace
@@ -274,6 +274,20 @@ AX_RX_DX: tuple[Model, ...] = (
              192.6, 12.0, ((12.0, 1.0, 0.62, 54),),
              _ONE.format('DX-113', 11.1) + '; no stall current published: the RX-10 torque '
              'constant 1.3 N.m / 0.8 A (same 54 rpm at 12 V, 193:1) assumed')),
+    # DX-116: its page gives 2.1 N.m at 12 V and 2.9 N.m at 16 V (142.5:1), no stall current
+    # nor speed. The DX-series manual (2004) says the DX-116 and DX-117 use the same RE-max
+    # coreless motor: the DX-117's (3.7 N.m at 1.9 A, 85 rpm at 18.5 V, 192.6:1) is assumed,
+    # its torque per amp and speed per volt carried through the 142.5:1 gear (1.441 N.m/A:
+    # 1.46 and 2.01 A; 884.9 motor rpm/V: 74.5 and 99.4 rpm). The DX-116 manual's 70 rpm at
+    # the top of Moving Speed is near the 12 V figure. 16 V is the point nearest the
+    # recommended 14.8 V.
+    _pot(116, 'DX-116', 'DX', baud=34, temperature=(85, 100), voltage=_RX_V,
+         compliance=(0, 32), wheel=False, physics=datasheet(
+             142.5, 16.0, ((12.0, 2.1, 1.46, 74.5), (16.0, 2.9, 2.01, 99.4)),
+             _SPEC.format('DX-116') + ' (stall torque only; the recommended 14.8 V is not '
+             'published); stall current and no-load speed assumed from the DX-117, whose '
+             'RE-max motor the DX-series manual says the DX-116 shares, scaled by gear ratio '
+             '(192.6 -> 142.5) and voltage')),
     _pot(117, 'DX-117', 'DX', baud=34, temperature=(80, 100), voltage=_RX_V, compliance=(1, 32),
          wheel=False, physics=datasheet(192.6, 18.5, ((18.5, 3.7, 1.9, 85),),
                                         _ONE.format('DX-117', 14.8))),
