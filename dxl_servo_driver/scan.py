@@ -409,7 +409,7 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
     lines.append('  ros__parameters:')
     lines.append(f'    port: {_yaml_string(params["port"])}')
     lines.append(f'    baud_rate: {params["baud_rate"]}')
-    if params.get('protocol', 2.0) != 2.0:
+    if 'protocol' in params:
         lines.append(f'    protocol: {params["protocol"]}')
     if 'latency_timer' in params:
         source = 'read from the adapter' if latency_read else \
@@ -585,9 +585,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not result.servos:
         what = 'a broadcast ping' if args.ids is None else (
             'pings of id(s) ' + ' '.join(str(i) for i in args.ids))
-        what += f', Protocol {args.protocol}'.replace('both', '2.0 and 1.0')
-        print(f'scan: no servo answered on {args.port} ({what} at {tried} bps).\n{HINT}',
-              file=err)
+        protocols = ' and '.join(f'{p:.1f}' for p in PROTOCOLS[args.protocol])
+        print(f'scan: no servo answered on {args.port} ({what} at {tried} bps, Protocol '
+              f'{protocols}).\n{HINT}', file=err)
         return EXIT_NOT_FOUND
     print(f'scan: found {_plural(len(result.servos), "servo")} (tried {tried} bps)', file=err)
     _report_bauds(result.servos, err)

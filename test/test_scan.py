@@ -8,7 +8,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 from dxl_servo_driver import config, scan
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError
-from dxl_servo_driver.models import model_for, modes, xm430
+from dxl_servo_driver.models import ALL_MODELS, model_for, modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.serial_port import open_port
 from processes import StartVirtualBus, VirtualBusProcess
@@ -84,7 +84,8 @@ def test_servos_at_57600_are_found_with_every_field(start: Starter,
                                                     capsys: pytest.CaptureFixture) -> None:
     vb = start([1, 2], 57600)
     status, out, err = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
-                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS,
+                                '--protocol', '2.0')
     assert status == scan.EXIT_OK
     assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
                    XM430_LINE.format(id=2, baud=57600, mode='position', errors='none')]
@@ -98,7 +99,8 @@ def test_an_injected_hardware_error_is_shown_decoded(start: Starter,
     answer = vb.control('error 2 overload')
     assert answer is not None and answer.startswith('ok'), answer
     status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
-                              '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+                              '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS,
+                              '--protocol', '2.0')
     assert status == scan.EXIT_OK
     assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
                    XM430_LINE.format(id=2, baud=57600, mode='position',
@@ -114,7 +116,9 @@ def test_ids_restrict_the_scan_to_those_ids_at_every_baud(start: Starter,
     assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
                    XM430_LINE.format(id=3, baud=57600, mode='position', errors='none')]
     progress = [line for line in err if line.startswith('scanning')]
-    assert progress == [f'scanning {b} bps (ping of 3 id(s)) ...' for b in scan.default_bauds()]
+    assert progress == [line for b in scan.default_bauds() for line in (
+        f'scanning {b} bps (ping of 3 id(s)) ...',
+        f'scanning {b} bps, Protocol 1.0 (ping of 3 id(s)) ...')]
 
 
 def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
@@ -135,8 +139,10 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
     with_bus(device, 57600, prepare)
     assert with_bus(device, 1_000_000, lambda bus: retried(lambda: bus.ping(2))) == 1030
     output = tmp_path / 'found.yaml'
+    # Protocol 2.0 only: a 1.0 sweep pings every id at every baud (test_scan_finds_...1_0).
     status, out, err = run_scan(capsys, '--port', str(vb.link), '--output', str(output),
-                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS,
+                                '--protocol', '2.0')
     assert status == scan.EXIT_OK
     assert out == [XM430_LINE.format(id=1, baud=57600, mode='position', errors='none'),
                    XM430_LINE.format(id=3, baud=57600, mode='velocity', errors='none'),
@@ -162,11 +168,13 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
         lambda: bus.write_item(9, mode, modes.BY_NAME['current_based_position'].number)))
     output = tmp_path / 'bus.yaml'
     status, out, _ = run_scan(capsys, '--port', str(vb.link), '--baud', '1000000', '--output',
-                              str(output), '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+                              str(output), '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS,
+                              '--protocol', '2.0')
     assert status == scan.EXIT_OK
     assert len(out) == 2
     flat = flatten(yaml.safe_load(output.read_text()))
-    assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'joints': ['joint_4', 'joint_9'],
+    assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'protocol': 2.0,
+                    'joints': ['joint_4', 'joint_9'],
                     'latency_timer': 16.0,   # a pty has no latency timer: the Linux default
                     'joint_4.id': 4, 'joint_4.operating_mode': 'position',
                     'joint_4.model': 'XM430-W210',
@@ -179,9 +187,46 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
     assert not list(tmp_path.glob('bus.yaml.tmp*'))
 
 
+def test_scan_finds_servos_of_both_protocols_and_the_file_says_which(
+        virtual_bus: StartVirtualBus, capsys: pytest.CaptureFixture,
+        tmp_path: pathlib.Path) -> None:
+    # An AX-12A (Protocol 1.0 only), an XM430 on 2.0, and one switched to 1.0 by its
+    # Protocol Version register (13): one pty, one baud.
+    link = tmp_path / 'ttyDXL'
+    vb = virtual_bus([1, 2, 3], 57600, link, extra_args=['--models', '12', '1030', '1030'])
+    version = MANUAL.item('protocol_version')
+
+    def to_protocol_1(bus: Bus) -> None:
+        try:
+            bus.write_item(3, version, 1)   # its status comes in 2.0, then it speaks 1.0
+        except CommError:
+            pass
+
+    with_bus(vb.device, 57600, to_protocol_1)
+    assert vb.get(3, 'protocol_version') == 1
+    output = tmp_path / 'both.yaml'
+    status, out, err = run_scan(capsys, '--port', str(link), '--ids', '1', '2', '3',
+                                '--baud', '57600', '--output', str(output),
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK, err
+    assert out == [
+        XM430_LINE.format(id=2, baud=57600, mode='position', errors='none'),
+        'id 1: model 12 (AX-12A), firmware 0, 57600 bps, Protocol 1.0, mode position, '
+        'hardware errors: not in its table (each reply says them)',
+        'id 3: model 1030 (XM430-W210), firmware 45, 57600 bps, Protocol 1.0, mode position, '
+        'hardware errors: none']
+    parsed = config.validate(flatten(yaml.safe_load(output.read_text())))
+    assert parsed.protocol == 2.0
+    assert {joint.servo_id: joint.protocol for joint in parsed.joints} == {
+        1: 1.0, 2: 2.0, 3: 1.0}
+    assert 'protocol: 1.0  #' in output.read_text()
+
+
 @pytest.mark.parametrize('extra, what', [
-    (['--baud', '115200', '1000000'], 'a broadcast ping at 115200, 1000000 bps'),
-    (['--ids', '1', '2', '--baud', '57600'], 'pings of id(s) 1 2 at 57600 bps'),
+    (['--baud', '115200', '1000000', '--protocol', '2.0'],
+     'a broadcast ping at 115200, 1000000 bps, Protocol 2.0'),
+    (['--ids', '1', '2', '--baud', '57600'],
+     'pings of id(s) 1 2 at 57600 bps, Protocol 2.0 and 1.0'),
 ])
 def test_nothing_found_exits_non_zero_with_the_usual_causes(
         start: Starter, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path,
@@ -193,7 +238,7 @@ def test_nothing_found_exits_non_zero_with_the_usual_causes(
     assert out == []
     text = '\n'.join(err)
     assert f'no servo answered on {vb.link} ({what})' in text
-    for cause in ('power', 'baud rate', 'Protocol 1.0', 'latency timer', 'udev'):
+    for cause in ('power', 'baud rate', 'protocol', 'latency timer', 'udev'):
         assert cause in text
     assert not output.exists()
 
@@ -225,7 +270,7 @@ def test_permission_denied_says_how_to_fix_it(capsys: pytest.CaptureFixture) -> 
 
 @pytest.mark.parametrize('args, message', [
     ([], 'the following arguments are required: --port'),
-    (['--port', '/dev/ttyX', '--baud', '1234'], '--baud 1234: the servo supports'),
+    (['--port', '/dev/ttyX', '--baud', '1234'], '--baud 1234: no supported model runs at it'),
     (['--port', '/dev/ttyX', '--baud', 'fast'], "invalid int value: 'fast'"),
     (['--port', '/dev/ttyX', '--ids', '253'], '--ids 253: ids are 0..252'),
     (['--port', '/dev/ttyX', '--protocol-timeout-ms', '0'], '--protocol-timeout-ms must be'),
@@ -252,7 +297,9 @@ def test_default_bauds_are_the_whole_table_most_common_first() -> None:
     bauds = scan.default_bauds()
     assert bauds[:2] == [57600, 1000000]
     assert bauds[-1] == 9600   # slowest broadcast ping last
-    assert sorted(bauds) == sorted(xm430.BAUD_RATES.values())
+    # Every baud some supported model takes: the X's, the Protocol 1.0 ones', the P's.
+    assert sorted(bauds) == sorted({bps for model in ALL_MODELS for bps in model.bauds.values()})
+    assert {115200, 19200, 200000, 10_500_000} <= set(bauds)
 
 
 def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optional[int] = 3,
