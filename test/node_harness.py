@@ -330,13 +330,14 @@ def startup_failure(params: Mapping[str, Any]) -> StartupFailure:
 
 def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
                    prepare: Optional[Callable[[Any], None]] = None,
-                   wrap: Optional[Callable[[Any], Any]] = None) -> NodeHarness:
+                   wrap: Optional[Callable[[Any], Any]] = None,
+                   protocol: int = 2) -> NodeHarness:
     """
     Start a `port: sim` node whose port goes through a FaultyPort (or wrap(port)).
 
     The simulated servos are made once (prepare(sim) may change them first); every configure
     opens a new port on them (after a cleanup closed the last one), as a node reopens its
-    device.
+    device. protocol: the framing the faults cut replies by (1 for a Protocol 1.0 bus).
     """
     made: Dict[str, Any] = {}
 
@@ -348,7 +349,8 @@ def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
         sim = made['sim']
 
         def open_port() -> Any:
-            port = FaultyPort(SimPortHandler(sim, 'sim', config.baud_rate), faults, seed)
+            port = FaultyPort(SimPortHandler(sim, 'sim', config.baud_rate), faults, seed,
+                              protocol=protocol)
             return wrap(port) if wrap is not None else port
         return SimTransport(sim, open_port)
     return NodeHarness(params, port_factory=factory)
