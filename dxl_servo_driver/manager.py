@@ -18,7 +18,7 @@ to cycle_end() or abort_read() (driver/cycle.ReadInFlight).
 
 import threading
 import time
-from typing import Callable, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
@@ -48,6 +48,15 @@ __all__ = [
     'IDX_VOLTAGE', 'Interrupted', 'Log', 'Manager', 'ManagerError', 'open_transport',
     'PortFactory', 'Result', 'Servo', 'Stats',
 ]
+
+
+def _transactions(budget: state_block.BusBudget) -> str:
+    """Return a cycle's transactions as 'sync read, 12 x read (Protocol 1.0), sync write'."""
+    counts: Dict[str, int] = {}
+    for each in budget.transactions:
+        counts[each.what] = counts.get(each.what, 0) + 1
+    return ', '.join(what if count == 1 else f'{count} x {what}'
+                     for what, count in counts.items()) or 'nothing read'
 
 
 class Manager:
@@ -160,7 +169,7 @@ class Manager:
                 f'bus limit for {len(self.active_servos())} servos at {self.config.baud_rate} bps '
                 f'(return delay {self._ctx.link.io().return_delay_s * 1e6:.0f} us, latency timer '
                 f'{self.config.latency_timer:g} ms): {budget.rate_limit_hz:.0f} Hz '
-                f'({budget.bytes_per_cycle} bytes per cycle)')
+                f'({budget.bytes_per_cycle} bytes per cycle: {_transactions(budget)})')
             if budget.rate_limit_hz < self.config.loop_rate:
                 self._ctx.log.warn(
                     f'loop_rate {self.config.loop_rate:g} Hz is above what the bus can carry '
@@ -176,9 +185,13 @@ class Manager:
         """Return what one cycle costs on this bus."""
         bus = self._ctx.link.bus
         rdt_raw = int(round((bus.return_delay_s if bus else 0.0005) / RETURN_DELAY_UNIT_S))
-        return state_block.bus_budget(max(1, len(self.active_servos())), self.config.baud_rate,
-                                      rdt_raw, self.config.latency_timer / 1000.0,
-                                      fast=self._cycle.fast)
+        plan = self._cycle.wire_plan()
+        if not plan:   # nobody to read: what one servo would cost
+            return state_block.bus_budget(1, self.config.baud_rate, rdt_raw,
+                                          self.config.latency_timer / 1000.0,
+                                          fast=self._cycle.fast)
+        return state_block.plan_budget(plan, self.config.baud_rate, rdt_raw,
+                                       self.config.latency_timer / 1000.0)
 
     @property
     def read_mode_in_use(self) -> str:

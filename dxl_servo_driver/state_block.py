@@ -14,6 +14,8 @@ from typing import Callable, Mapping, Optional
 from dxl_servo_driver.models import Item, Model, modes
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
+from dxl_servo_driver.protocol1 import (
+    INSTRUCTION_OVERHEAD as INSTRUCTION_OVERHEAD_1, STATUS_OVERHEAD as STATUS_OVERHEAD_1)
 
 
 @dataclass(frozen=True)
@@ -391,6 +393,34 @@ def sync_write_bytes(n_servos: int, data_length: int) -> int:
     return INSTRUCTION_OVERHEAD + 4 + n_servos * (1 + data_length)
 
 
+# Protocol 1.0 framing sizes (protocol1.py): no CRC, one-byte lengths and addresses.
+
+
+def read_bytes_1(length: int) -> int:
+    """Return the bytes on the wire of one Protocol 1.0 READ and its status packet."""
+    return INSTRUCTION_OVERHEAD_1 + 2 + STATUS_OVERHEAD_1 + length
+
+
+def bulk_read_bytes_1(lengths: list[int]) -> int:
+    """Return the bytes on the wire of one Protocol 1.0 BULK_READ and every status packet."""
+    return (INSTRUCTION_OVERHEAD_1 + 1 + 3 * len(lengths)
+            + sum(STATUS_OVERHEAD_1 + length for length in lengths))
+
+
+def sync_write_bytes_1(n_servos: int, data_length: int) -> int:
+    """Return the bytes on the wire of one Protocol 1.0 SYNC_WRITE."""
+    return INSTRUCTION_OVERHEAD_1 + 2 + n_servos * (1 + data_length)
+
+
+@dataclass(frozen=True)
+class Transaction:
+    """One transaction of a cycle: its bytes on the wire and the replies it waits for."""
+
+    what: str
+    bytes_on_wire: int
+    replies: int          # each waits its servo's Return Delay Time (a fast read: one)
+
+
 @dataclass(frozen=True)
 class BusBudget:
     """What one cycle costs on the wire and the rate the bus can sustain."""
@@ -399,6 +429,7 @@ class BusBudget:
     wire_time_s: float
     return_delay_s: float
     latency_s: float
+    transactions: tuple[Transaction, ...] = ()
 
     @property
     def cycle_time_s(self) -> float:
@@ -409,6 +440,23 @@ class BusBudget:
     def rate_limit_hz(self) -> float:
         """Return the highest loop rate the bus can carry."""
         return 1.0 / self.cycle_time_s
+
+
+def plan_budget(transactions: list[Transaction], baud_bps: int,
+                return_delay_time_raw: int = 0, latency_timer_s: float = 0.0) -> BusBudget:
+    """
+    Return the cost of one cycle made of these transactions.
+
+    Every read (a transaction with replies) waits the USB adapter's latency timer once before
+    the host sees its replies, and each reply its servo's Return Delay Time.
+    """
+    total = sum(each.bytes_on_wire for each in transactions)
+    reads = sum(1 for each in transactions if each.replies)
+    return BusBudget(
+        bytes_per_cycle=total, wire_time_s=total * BITS_PER_BYTE / baud_bps,
+        return_delay_s=sum(each.replies for each in transactions) * return_delay_time_raw
+        * RETURN_DELAY_UNIT_S,
+        latency_s=reads * latency_timer_s, transactions=tuple(transactions))
 
 
 def bus_budget(n_servos: int, baud_bps: int, return_delay_time_raw: int = 0,

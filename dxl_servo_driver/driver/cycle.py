@@ -39,6 +39,10 @@ SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
 _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
+# A cycle's goal per servo as the bus limit counts it: a position (4 bytes; 2 on the Protocol
+# 1.0 tables, whose goals are 2 bytes).
+GOAL_BYTES = 4
+GOAL_BYTES_1 = 2
 SyncWrite = Tuple[float, int, int, List[Tuple[int, bytes]]]   # protocol, address, length, data
 
 
@@ -184,6 +188,44 @@ class Cycle:
             mode == 'auto' and not self.fast_given_up
             and all(servo.model.has_fast_sync_read(servo.firmware_version)
                     for servo, _ in self._ids if servo.joint.protocol != 1.0)))
+
+    def wire_plan(self) -> List[state_block.Transaction]:
+        """
+        Return the transactions of one usual cycle as the servos are grouped now.
+
+        Each sync read (one per block layout; fast when in use), the Protocol 1.0 servos' bulk
+        read or reads (a tickless block counted with its mean tag), and one sync write of a goal
+        per servo in each protocol: what the bus-limit report and the diagnostics count.
+        """
+        plan: List[state_block.Transaction] = []
+        for block, ids in self._groups:
+            length = _group_length(block, BLOCK.tagged_size, 0 if block.has_tick
+                                   else (READ_TAGS - 1) // 2)
+            if self.fast:
+                plan.append(state_block.Transaction(
+                    'fast sync read', state_block.fast_sync_read_bytes(len(ids), length), 1))
+            else:
+                plan.append(state_block.Transaction(
+                    'sync read', state_block.sync_read_bytes(len(ids), length), len(ids)))
+        lengths = [_group_length(servo.block, BLOCK.tagged_size)
+                   + (0 if servo.block.has_tick else (READ_TAGS - 1) // 2)
+                   for servo in self._group_1]
+        if lengths and self._bulk_1:
+            plan.append(state_block.Transaction(
+                'bulk read (Protocol 1.0)', state_block.bulk_read_bytes_1(lengths), len(lengths)))
+        else:
+            plan.extend(state_block.Transaction('read (Protocol 1.0)',
+                                                state_block.read_bytes_1(length), 1)
+                        for length in lengths)
+        on_2 = len(self._ids) - len(self._group_1)
+        if on_2:
+            plan.append(state_block.Transaction(
+                'sync write', state_block.sync_write_bytes(on_2, GOAL_BYTES), 0))
+        if self._group_1:
+            plan.append(state_block.Transaction(
+                'sync write (Protocol 1.0)',
+                state_block.sync_write_bytes_1(len(self._group_1), GOAL_BYTES_1), 0))
+        return plan
 
     # the read -----------------------------------------------------------------------------
     def begin_read(self, full: Optional[bool] = None) -> bool:
