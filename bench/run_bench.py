@@ -70,14 +70,15 @@ class VirtualBus:
     """A virtual_bus subprocess with wire timing and its control lines."""
 
     def __init__(self, n: int, baud: int, workdir: pathlib.Path, tag: str = '',
-                 latency_ms: float = 0.0) -> None:
+                 latency_ms: float = 0.0, model: Optional[int] = None) -> None:
         self.link = str(workdir / f'ttyBENCH_{n}_{baud}{tag}')
         self.trace = workdir / f'goals_{n}_{baud}{tag}.txt'
+        models = [] if model is None else ['--models', *[str(model)] * n]
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'dxl_servo_driver.sim.virtual_bus',
              '--ids', *[str(i) for i in range(1, n + 1)], '--baud', str(baud),
              '--timing', 'wire', '--return-delay-time', '0', '--link', self.link,
-             '--latency-ms', str(latency_ms), '--trace-goals', str(self.trace)],
+             '--latency-ms', str(latency_ms), '--trace-goals', str(self.trace), *models],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         self.device = self.process.stdout.readline().strip()
         if not self.device:
@@ -138,7 +139,7 @@ class NodeUnderTest:
 
     def __init__(self, n: int, baud: int, link: str, workdir: pathlib.Path,
                  namespace: str = NAMESPACE, read_mode: str = 'sync',
-                 latency_timer_ms: float = 0.0) -> None:
+                 latency_timer_ms: float = 0.0, protocol: float = 2.0) -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from dxl_servo_driver_msgs.msg import JointCommand
@@ -151,6 +152,7 @@ class NodeUnderTest:
         params = workdir / f'params_{n}_{baud}_{tag}.yaml'
         lines = ['/**:', '  ros__parameters:', f'    port: {link}', f'    baud_rate: {baud}',
                  f'    read_mode: {read_mode}', f'    latency_timer: {latency_timer_ms}',
+                 f'    protocol: {protocol}',
                  '    loop_rate: 10000.0', '    autostart: false',
                  f'    state_rate: {HEALTH_RATE_HZ}', f'    joints: [{", ".join(self.joints)}]']
         # Extra node parameters for experiments, e.g. BENCH_NODE_EXTRA='executor: events'.
@@ -447,6 +449,45 @@ def adapter_latency(n: int, baud: int, latency_ms: float,
             'ratio': round(rate / allowed, 3)}
 
 
+def protocol1_case(workdir: pathlib.Path, n: int = 12, baud: int = 1_000_000,
+                   number: int = 12) -> Dict[str, Any]:
+    """
+    Measure a Protocol 1.0 bus: N AX-12A (no BULK_READ: one READ each; no tick: tagged reads).
+
+    The limit is the cycle's own transactions (the node's wire plan): N reads of the direct
+    block with its mean tag, and a 1.0 sync write when a command arrived.
+    """
+    from dxl_servo_driver.bus import READ_TAGS
+    bus = VirtualBus(n, baud, workdir, tag='_p1', model=number)
+    node: Optional[NodeUnderTest] = None
+    runs: List[Dict[str, Any]] = []
+    try:
+        node = NodeUnderTest(n, baud, bus.link, workdir, f'{NAMESPACE}_p1', protocol=1.0)
+        runs = [node.measure() for _ in range(ROUNDS)]
+        seen = bus.goals()
+    finally:
+        if node is not None:
+            node.close()
+        bus.close()
+    model = model_for(number)
+    block = state_block.state_block(model, 'present_load')
+    length = block.size + (0 if block.has_tick else (READ_TAGS - 1) // 2)
+    cycles = sum(run['cycles'] for run in runs)
+    wall = sum(run['wall_s'] for run in runs)
+    rate = cycles / wall if wall else 0.0
+    writes = sum(len({t for t, servo_id, _ in seen if servo_id == 1 and start <= t <= end})
+                 for run in runs for start, end in [run['window']])
+    per_cycle = (n * state_block.read_bytes_1(length)
+                 + (writes / cycles if cycles else 0.0) * state_block.sync_write_bytes_1(n, 2))
+    bus_s = per_cycle * BITS_PER_BYTE / baud
+    cpu = sum(run['cpu_s'] for run in runs)
+    return {'case': f'Protocol 1.0: {n} x {model.name} at {baud} bps', 'n': n, 'baud': baud,
+            'rate_hz': round(rate, 1), 'bus_limit_hz': round(1.0 / bus_s, 1),
+            'rate_ratio': round(rate * bus_s, 3), 'bytes_per_cycle': round(per_cycle, 1),
+            'cpu_per_cycle_us': round(cpu / cycles * 1e6, 1) if cycles else None,
+            'cycles': cycles}
+
+
 def scale(workdir: pathlib.Path, failures: List[str]) -> Dict[str, Any]:
     """Run the scale cases of the speed issue: N = 50, two buses at once, a 1 ms adapter."""
     print('bench: scale: N=50 at 4000000 bps ...', file=sys.stderr, flush=True)
@@ -583,12 +624,23 @@ def plot(rows: List[Dict[str, Any]], path: pathlib.Path) -> None:
     plt.close(figure)
 
 
+def protocol1_line(row: Dict[str, Any]) -> str:
+    """Return the Protocol 1.0 case as one line."""
+    return (f'{row["case"]}: node {row["rate_hz"]} Hz of a {row["bus_limit_hz"]} Hz bus limit '
+            f'({row["rate_ratio"]}), {row["bytes_per_cycle"]} bytes per cycle, CPU '
+            f'{row["cpu_per_cycle_us"]} us per cycle')
+
+
 def main() -> int:
     """Run every case, write the JSON and the plot, print the table."""
     out_dir = ROOT / 'bench-results'
     out_dir.mkdir(exist_ok=True)
     if sys.argv[1:] == ['scale']:
         return main_scale(out_dir)
+    if sys.argv[1:] == ['protocol1']:
+        with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
+            print(protocol1_line(protocol1_case(pathlib.Path(tmp))))
+        return 0
     counts = [int(c) for c in os.environ.get('BENCH_COUNTS', ' '.join(map(str, COUNTS))).split()]
     bauds = [int(b) for b in os.environ.get('BENCH_BAUDS', ' '.join(map(str, BAUDS))).split()]
     rows: List[Dict[str, Any]] = []
@@ -601,14 +653,22 @@ def main() -> int:
             for n in counts:
                 print(f'bench: N={n} at {baud} bps ...', file=sys.stderr, flush=True)
                 rows.extend(run_case_retried(n, baud, workdir, failures))
+        print('bench: Protocol 1.0, N=12 AX-12A at 1000000 bps ...', file=sys.stderr, flush=True)
+        try:
+            p1: Optional[Dict[str, Any]] = protocol1_case(workdir)
+        except Exception as exc:  # noqa: B902 - one case must not end the whole benchmark
+            p1 = None
+            failures.append(f'bench: Protocol 1.0 case failed: {exc}')
     crc = crc_comparison()
-    result = {'machine': machine(), 'cases': rows, 'crc': crc}
+    result = {'machine': machine(), 'cases': rows, 'crc': crc, 'protocol1': p1}
     (out_dir / 'bench.json').write_text(json.dumps(result, indent=1) + '\n')
     plot(rows, out_dir / 'bench.png')
     print(table(rows))
     print()
     for line in targets(rows):
         print(line)
+    if p1 is not None:
+        print(protocol1_line(p1))
     print(f'CRC of one cycle\'s replies (N = {crc["n"]}): {crc["implementation"]} '
           f'{crc["compiled_us_per_cycle"]} us, pure Python {crc["python_us_per_cycle"]} us '
           f'(ratio {crc["ratio"]})')
