@@ -15,10 +15,10 @@ from node_harness import NodeHarness, sim_params
 import pytest
 
 # joint name -> model number: one of each family (and both MX(2.0) tables: with and without
-# current sensing).
+# current sensing; the L42-10-S300-R beside the H54: its own units and modes).
 MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321, 'ph54': 2020, 'h42a': 51201,
-                          'gripper': 35074, 'h54': 54024, 'ym070': 4000, 'xl320': 350,
-                          'ax12': 12, 'mx28_1': 29, 'x_on_1': 1020}
+                          'gripper': 35074, 'h54': 54024, 'l42': 35072, 'ym070': 4000,
+                          'xl320': 350, 'ax12': 12, 'mx28_1': 29, 'x_on_1': 1020}
 # Joints whose servo speaks Protocol 1.0 (an X servo switched by its Protocol Version).
 PROTOCOLS = {'x_on_1': 1.0, 'ax12': 1.0, 'mx28_1': 1.0}
 # Each joint rests in velocity mode, or current mode where the model has no velocity mode.

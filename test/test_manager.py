@@ -429,7 +429,7 @@ def test_missing_servo_refuses_or_skips(rig: Rig) -> None:
     assert not result.success and 'not on the bus' in result.message
 
 
-@pytest.mark.parametrize('number, name', [(35072, 'L42-10-S300-R'), (9999, 'model number 9999')])
+@pytest.mark.parametrize('number, name', [(1700, 'XC335-T332'), (9999, 'model number 9999')])
 def test_an_unsupported_model_is_refused_by_name(rig: Rig, number: int, name: str) -> None:
     rig.sim.servo(2).memory.set('model_number', number)
     manager = rig.manager(validate(params()))

@@ -358,8 +358,9 @@ def test_model_named() -> None:
     # The ball-bearing XC430 report the plain ones' numbers (their e-manual pages).
     assert model_named('XC430-T150BB-T') is model_for(1070) is model_named('xc430-w150bb')
     assert model_named('XC430-W240BB') is model_for(1080) is model_named('XC430-T240BB')
-    with pytest.raises(ModelError, match='L42-10-S300-R'):
-        model_named('L42-10-S300-R')
+    assert model_named('L42-10-S300-R') is model_for(35072)
+    with pytest.raises(ModelError, match='XC335-T332'):
+        model_named('XC335-T332')
 
 
 def test_item_lookups_fail_clearly() -> None:

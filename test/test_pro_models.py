@@ -5,7 +5,9 @@ The generic checks (items disjoint and in range, modes, units, physics) run over
 test_model_families.py. Here: addresses and sizes item by item against dynamixel-workbench's
 dynamixel_item.cpp (items_EXTPRO and its per-model position and velocity info), initial values
 against the ROBOTIS e-manual pages, hard-coded as oracles independent of the module, and what
-roles, units and modes must mean.
+roles, units and modes must mean. The L42-10-S300-R, whose sources disagree, is checked against
+each of them where they agree: workbench's items_PRO and info_PRO, the ROBOTIS-Framework device
+file, its page (current and older revision) and the PRO data file.
 """
 
 import math
@@ -15,7 +17,9 @@ from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.models.units import units_for
 import pytest
 
-PRO = tuple(model for model in ALL_MODELS if model.family == 'PRO')
+L42 = model_for(35072)
+# The ten on the shared layout (the L42 has its own checks below).
+PRO = tuple(model for model in ALL_MODELS if model.family == 'PRO' and model is not L42)
 GRIPPER = model_for(35073)
 
 # dynamixel-workbench items_EXTPRO: our name -> (address, size). Its rows 626..632 are named
@@ -94,11 +98,11 @@ def _label(model: Model) -> str:
 every_pro = pytest.mark.parametrize('model', PRO, ids=_label)
 
 
-def test_the_ten_and_the_gripper_are_supported_and_the_l42_refused() -> None:
+def test_the_eleven_and_the_gripper_are_supported() -> None:
     assert {model.number for model in PRO} == set(WB_INFO)
-    assert all(len(SUPPORTED[number]) == 1 for number in (*WB_INFO, 35073))
-    assert 35072 not in SUPPORTED and OTHER_MODELS[35072][0] == 'L42-10-S300-R'
-    assert 35073 not in OTHER_MODELS and not set(WB_INFO) & set(OTHER_MODELS)
+    assert all(len(SUPPORTED[number]) == 1 for number in (*WB_INFO, 35072, 35073))
+    assert not {35072, 35073, *WB_INFO} & set(OTHER_MODELS)
+    assert model_named('l42-10-s300-r') is L42 and L42.family == 'PRO'
     assert model_named('h54-200-s500-r') is model_for(54024)
     assert model_named('H54-200-S500-R(A)') is model_for(54025)
     assert model_named('RH-P12-RN') is GRIPPER and model_named('RH-P12-RN(A)').number == 35074
@@ -221,3 +225,95 @@ def test_the_gripper_against_its_page() -> None:
     assert 820 * GRIPPER.current_unit_a == pytest.approx(3.33, rel=0.02)
     assert GRIPPER.physics.gear_ratio == 1181.0
     assert GRIPPER.physics.nominal == model_for(35074).physics.nominal
+
+
+# --- L42-10-S300-R (35072) ---------------------------------------------------------------------
+
+# dynamixel-workbench items_PRO (the L42's own list): items_EXTPRO without Homing Offset, row by
+# row the same addresses and sizes otherwise.
+WB_PRO = {name: place for name, place in WB_EXTPRO.items() if name != 'homing_offset'}
+# Rows the sources disagree on, left out of the model: the current page's Velocity I/P Gain
+# (workbench lists them; the older page and the description have Position D/I Gain instead).
+L42_CONTESTED = {'velocity_i_gain', 'velocity_p_gain'}
+# workbench info_PRO: rpm per count, raw at -pi, at 0 rad, at +pi.
+WB_INFO_PRO = (0.114, -2048, 0, 2048)
+# ROBOTIS-Framework L42-10-S300-R.device [type info]: addresses and the radian mapping.
+FRAMEWORK_L42 = {
+    'torque_enable': 562, 'position_p_gain': 594, 'goal_position': 596, 'goal_velocity': 600,
+    'goal_torque': 604, 'moving': 610, 'present_position': 611, 'present_velocity': 615,
+    'present_current': 621,
+}
+FRAMEWORK_RADIAN = (-2047, 0, 2048)
+# Its e-manual page (current revision): initial values.
+L42_EMANUAL = {
+    'model_number': 35072, 'id': 1, 'baud_rate': 1, 'return_delay_time': 250,
+    'operating_mode': 3, 'moving_threshold': 10, 'temperature_limit': 80,
+    'max_voltage_limit': 400, 'min_voltage_limit': 150, 'torque_limit': 987,
+    'max_position_limit': 2048, 'min_position_limit': -2047, 'indirect_address_1': 634,
+    'indirect_address_256': 889, 'torque_enable': 0, 'position_p_gain': 64,
+    'goal_velocity': 0, 'goal_torque': 0, 'goal_acceleration': 0, 'registered_instruction': 0,
+    'status_return_level': 2, 'hardware_error_status': 0,
+}
+# The older revision's Shutdown (0x30), the bits the description marks as defaults.
+L42_SHUTDOWN = 48
+# _data/dxl_pro_info.yml: gear ratio, resolution, continuous N.m and A, no-load rpm.
+L42_DATASHEET = (303.75, 4096, 1.2, 0.8, 29.7)
+
+
+def test_the_l42_addresses_against_workbench_and_the_framework() -> None:
+    ours = {item.name: (item.address, item.size) for item in L42.items
+            if not item.name.startswith('indirect_')}
+    assert set(ours) == (set(WB_PRO) - L42_CONTESTED) | BEYOND_WORKBENCH
+    for name, place in WB_PRO.items():
+        if name not in L42_CONTESTED:
+            assert ours[name] == place, name
+    for name, address in FRAMEWORK_L42.items():
+        assert L42.item(name).address == address, name
+    for absent in ('homing_offset', 'position_d_gain', 'position_i_gain', *L42_CONTESTED):
+        assert not L42.has(absent), absent
+    assert len(L42.indirect) == 256 and L42.indirect[-1] == (559, 889)
+
+
+def test_the_l42_initial_values_against_its_page() -> None:
+    for name, initial in L42_EMANUAL.items():
+        assert L42.item(name).initial == initial, name
+    assert L42.item('shutdown').initial == L42_SHUTDOWN
+    # Shutdown's defaults are named errors (overload, electrical shock).
+    assert [L42.hardware_error_bits[bit] for bit in (0x10, 0x20)] == [
+        'electrical_shock', 'overload']
+    # Torque Limit's range is 0..987 and Goal Torque is within +-Torque Limit (its table).
+    assert L42.item('torque_limit').maximum == 987
+    goal = L42.item('goal_torque')
+    expected = (-987, 987, 'torque_limit', True)
+    assert (goal.minimum, goal.maximum, goal.limit, goal.signed) == expected
+
+
+def test_the_l42_units_modes_and_roles() -> None:
+    rpm, at_minus_pi, at_zero, at_pi = WB_INFO_PRO
+    assert L42.velocity_unit_rpm == rpm and L42.position_zero_raw == at_zero
+    assert L42.pulses_per_rev == at_pi - at_minus_pi == L42_DATASHEET[1]
+    low, zero, high = FRAMEWORK_RADIAN
+    assert zero == L42.position_zero_raw and abs(L42.pulses_per_rev - (high - low)) <= 1
+    # Its page's formula for Present Current and Goal Torque.
+    assert L42.current_unit_a == pytest.approx(8.25 / 2048)
+    assert 987 * L42.current_unit_a == pytest.approx(3.976, abs=1e-3)
+    assert L42.acceleration_unit_rpm2 == pytest.approx(214 / 303.75)
+    assert L42.modes == {'velocity': 1, 'position': 3}
+    mode = L42.item('operating_mode')
+    assert (mode.minimum, mode.maximum) == (1, 3)
+    assert L42.roles == {'goal_current': 'goal_torque', 'current_limit': 'torque_limit'}
+    assert L42.item('goal_current').name == 'goal_torque'
+    assert L42.eeprom_end == 562 and L42.homing_position_mode_limit is None
+    assert units_for(L42).effort_register == 'present_current'
+
+
+def test_the_l42_physics_is_its_datasheet() -> None:
+    gear, _, torque, current, speed = L42_DATASHEET
+    nominal = L42.physics.nominal
+    assert (nominal.voltage_v, nominal.stall_torque_nm, nominal.stall_current_a,
+            nominal.no_load_speed_rpm) == (24.0, torque, current, speed)
+    assert L42.physics.gear_ratio == gear and 'continuous' in L42.physics.source
+    assert 'assumed' in L42.physics.source
+    # The no-load speed fits the page's +-1,023 velocity range (260 counts); the assumed
+    # Velocity Limit is that range's top.
+    assert speed / L42.velocity_unit_rpm < 1023 == L42.item('velocity_limit').initial

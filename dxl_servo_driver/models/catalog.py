@@ -35,7 +35,7 @@ X_FAMILIES: tuple[str, ...] = (
 # The families as the refusal text and the README name them.
 FAMILIES: tuple[str, ...] = (
     *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)',
-    'PRO (H42/H54/M42/M54/L54)', 'RH-P12-RN/RH-P12-RN(A)',
+    'PRO (H42/H54/M42/M54/L42/L54)', 'RH-P12-RN/RH-P12-RN(A)',
     'Y (YM070-210/YM080-230)', 'XL-320', 'AX-12A/12W/18A', 'RX-10/24F/28/64', 'EX-106+',
     'DX-113/116/117', 'MX-12W/28/64/106(1.0)')
 

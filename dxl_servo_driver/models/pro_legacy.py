@@ -1,5 +1,5 @@
 """
-DYNAMIXEL PRO on its original firmware (H42/H54/M42/M54/L54 -R) and the first RH-P12-RN.
+DYNAMIXEL PRO on its original firmware (H42/H54/M42/M54/L54/L42 -R) and the first RH-P12-RN.
 
 Not the P/PRO(A) layout of models.pro: EEPROM 0..561 (the 256 Indirect Address entries at 49..559
 included), RAM from Torque Enable at 562; Goal Position 596, Goal Velocity 600, Goal Torque 604,
@@ -25,19 +25,48 @@ The gripper RH-P12-RN (35073) has this layout with Current Limit and Goal Curren
 names, position PID gains (590..594) instead of the velocity PI gains, no Homing Offset, and
 the current (0) and current-based position (5) modes.
 
+The L42-10-S300-R (35072) has this layout with other units and fewer registers. Its e-manual
+page contradicts itself and has changed over time; each contested item is settled by the
+sources that agree, the rest assumed (see L42_SOURCE):
+- positions: 4,096 pulses per output turn (the PRO data file, the Korean PRO overview) about 0,
+  +-2,048 for +-180 degrees (dynamixel-workbench info_PRO, the ROBOTIS-Framework device file,
+  the page's initial limits 2,048/-2,047); the page's '0 ~ 4,095, 0 ~ 360 degrees' text is the
+  MX's and is not followed (the limits it sits beside are negative);
+- velocity: 0.114 rpm of the output (the page's Goal/Present Velocity text and workbench
+  info_PRO; the table gives no unit), the page's range +-1,023;
+- Goal Torque: the motor current, 8,250/2,048 mA as on the other 42 frames (the page's
+  formula names Goal Torque and Present Current, its table bounds it by +-Torque Limit, its older
+  revision calls it 'Desired Current Value'; the '0 ~ 1,023, 0.1 %' text is the MX's Torque
+  Limit text); a cap in both of its modes, 0 at power-on (table; the PRO rule: 0 lets Torque
+  Limit apply, which is what the text's 'Torque Limit at power-on' amounts to);
+- Goal Acceleration: '214 RPM^2 @ Core Motor' read as the other PRO pages' phrase is (a motor
+  figure), over the 303.75:1 gear at the output (0.70453 rev/min^2); the other reading (214
+  rev/min^2 at the output, as on the X) is not excluded by any source, and nothing here uses
+  the figure but the simulator;
+- modes: velocity (1) and position (3) only (its Operating Mode table; the spec sheet's list is
+  the shared PRO one);
+- no Homing Offset (dynamixel-workbench items_PRO, the ROBOTIS-Framework device file and the
+  page's older revision have none; the current table lists one with no description);
+- gains: only Position P Gain (594), in every source; the current table's Velocity I/P (586,
+  588; initial values the H42-20-S300-R's) and the older table's and the description's Position
+  D/I (590, 592) contradict each other and are left out;
+- Shutdown 48 (0x30, bits 4 and 5: the description's defaults and the older revision's value;
+  the current table's '30' is read as that hexadecimal); Moving Threshold 10 (the current
+  table; the older revision gives 50);
+- Velocity Limit and Acceleration Limit are '-' on the page: 1,023 (the text's Goal Velocity
+  range) and 255 (as for the other PRO here) are assumed; the page's Indirect Address range
+  '562 ~ 949' passes the table's end, 892 is kept.
+
 Sources: the ROBOTIS e-manual pages of the H54-200-S500-R, H54-100-S500-R, H42-20-S300-R,
 M54-60-S250-R, M54-40-S250-R, M42-10-S260-R, L54-50-S500-R, L54-50-S290-R, L54-30-S400-R (their
 control tables with units and initial values), its shared PRO texts (Operating Mode, Baud Rate,
 Goal Velocity scale factors, Goal Torque formula, Goal Acceleration, Min/Max Position Limit,
 Shutdown, Indirect Address) and _data/dxl_pro_info.yml (resolution, gear ratio, datasheet
-figures); the RH-P12-RN page; dynamixel-workbench's dynamixel_item.cpp (items_EXTPRO and the
-per-model position and velocity info) for the cross-check of addresses and sizes. Assumptions
-are commented at the figure.
-
-Not here: the L42-10-S300-R (35072), whose page contradicts itself (positions 0..4,095 beside
-limits of +-2,048, Goal Torque as 0.1 % of the torque and as a current by formula, no unit on
-its velocity and acceleration registers) and whose workbench table lacks the Homing Offset its
-page lists: refused (models.names).
+figures); the RH-P12-RN page; the L42-10-S300-R page (current and older revision);
+dynamixel-workbench's dynamixel_item.cpp (items_EXTPRO, items_PRO and the per-model position and
+velocity info) for the cross-check of addresses and sizes; ROBOTIS-Framework's
+L42-10-S300-R.device (as kept in a public fork) for the L42's. Assumptions are commented at the
+figure.
 """
 
 from dataclasses import dataclass
@@ -46,7 +75,7 @@ from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.base import datasheet, Item, Model
 from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, item
 
-__all__ = ['GRIPPER', 'MODELS', 'PRO_MODELS']
+__all__ = ['GRIPPER', 'L42', 'MODELS', 'PRO_MODELS']
 
 EEPROM_END = 562           # Torque Enable: the first RAM address
 LAST_RAM = 892             # e-manual: Indirect Address takes RAM 562..892 (Hardware Error Status)
@@ -100,7 +129,7 @@ def _item(name: str, address: int, size: int, access: str, initial: int, minimum
 
 def _common(number: int, *, mode_initial: int, mode_max: int, moving_threshold: int,
             shutdown: int, acceleration_limit: int, velocity_limit: int, velocity_unit: str,
-            position: tuple[int, int, int, int]) -> list[Item]:
+            position: tuple[int, int, int, int], mode_min: int = 0) -> list[Item]:
     """
     Return the items the PRO and the gripper share.
 
@@ -119,7 +148,7 @@ def _common(number: int, *, mode_initial: int, mode_max: int, moving_threshold: 
               description='Communication Baud Rate'),
         _item('return_delay_time', 9, 1, 'RW', 250, 0, 255, unit='2 us',
               description='Response Delay Time'),
-        _item('operating_mode', 11, 1, 'RW', mode_initial, 0, mode_max,
+        _item('operating_mode', 11, 1, 'RW', mode_initial, mode_min, mode_max,
               description='Operating Mode'),
         _item('moving_threshold', 17, 4, 'RW', moving_threshold, 0, INT32_MAX,
               unit=velocity_unit, description='Velocity Threshold for Movement Detection'),
@@ -333,4 +362,61 @@ def _gripper() -> Model:
 
 
 GRIPPER = _gripper()
-MODELS: tuple[Model, ...] = (*PRO_MODELS, GRIPPER)
+
+
+# --- L42-10-S300-R (35072) ---------------------------------------------------------------------
+
+L42_GEAR = 303.75                # _data/dxl_pro_info.yml and the page's spec table
+L42_VELOCITY_RPM = 0.114         # its page's Goal/Present Velocity text, workbench info_PRO
+L42_VELOCITY_MAX = 1023          # its page: Goal Velocity -1,023 ~ 1,023
+L42_TORQUE_LIMIT = 987           # its table: Torque Limit initial and maximum (3.98 A)
+L42_HALF_TURN = 2048             # workbench info_PRO: +-2,048 is +-pi, 0 is 0 rad
+L42_MOTOR_ACCELERATION_RPM2 = 214  # its page: Goal Acceleration '214 RPM^2 @ Core Motor'
+L42_MODES = modes.numbers('velocity', 'position')
+L42_SOURCE = (
+    'ROBOTIS e-manual L42-10-S300-R specifications (_data/dxl_pro_info.yml): 303.75:1, '
+    'continuous 1.2 N.m at 0.8 A standing in for the unpublished stall figures, 29.7 rpm '
+    'no-load at 24 V. Its control table as settled in models.pro_legacy: 4,096 pulses per '
+    'turn about 0, 0.114 rpm, Goal Torque a current in 8,250/2,048 mA, no Homing Offset, '
+    'Position P Gain only; assumed: Velocity Limit 1,023, Acceleration Limit 255, Goal '
+    'Acceleration 214 rev/min^2 at the motor')
+
+
+def _l42() -> Model:
+    velocity_unit = f'{L42_VELOCITY_RPM:g} rpm'
+    current_unit = f'{CURRENT_42_MA:.5f} mA'
+    items = _common(
+        35072, mode_initial=3, mode_min=1, mode_max=3, moving_threshold=10, shutdown=0x30,
+        # Acceleration Limit: '-' on the page; the other PRO's assumed 255.
+        acceleration_limit=255, velocity_limit=L42_VELOCITY_MAX, velocity_unit=velocity_unit,
+        # Initial limits 2,048/-2,047 (its table); any int32 (its table's range).
+        position=(L42_HALF_TURN, 1 - L42_HALF_TURN, INT32_MIN, INT32_MAX))
+    items += [
+        _item('torque_limit', 30, 2, 'RW', L42_TORQUE_LIMIT, 0, L42_TORQUE_LIMIT,
+              unit=current_unit, description='Maximum Torque Limit (a current: bounds Goal '
+                                             'Torque)'),
+        # Initial 64 (its current table); range 0..65,535 (its table; the text: 0..32,767).
+        _item('position_p_gain', 594, 2, 'RW', 64, 0, 0xFFFF, description='P Gain of Position'),
+        _item('goal_torque', 604, 2, 'RW', 0, -L42_TORQUE_LIMIT, L42_TORQUE_LIMIT, signed=True,
+              limit='torque_limit', unit=current_unit,
+              description='Goal Torque (the motor current cap; 0: Torque Limit applies)'),
+        _item('present_current', 621, 2, 'R', 0, -32768, 32767, signed=True,
+              unit=current_unit, description='Present Current'),
+    ]
+    physics = datasheet(L42_GEAR, 24.0, ((24.0, 1.2, 0.8, 29.7),), L42_SOURCE)
+    return Model(
+        number=35072, name='L42-10-S300-R', family='PRO', items=_sorted(items),
+        modes=dict(L42_MODES), bauds=dict(BAUD_RATES), current_unit_a=CURRENT_42_MA / 1000.0,
+        load_unit_ratio=None, velocity_unit_rpm=L42_VELOCITY_RPM,
+        pulses_per_rev=2 * L42_HALF_TURN, position_zero_raw=0, pwm_full_raw=NO_PWM_SCALE,
+        voltage_unit_v=0.1, indirect=INDIRECT_PAIRS,
+        hardware_error_bits=dict(HARDWARE_ERROR_BITS), physics=physics,
+        fast_sync_read_firmware=None, roles=dict(ROLES),
+        # A motor figure (the PRO pages' phrase) carried through the gear to the output.
+        acceleration_unit_rpm2=L42_MOTOR_ACCELERATION_RPM2 / L42_GEAR,
+        extended_position_limit=INT32_MAX, homing_position_mode_limit=None,
+        eeprom_end=EEPROM_END)
+
+
+L42 = _l42()
+MODELS: tuple[Model, ...] = (*PRO_MODELS, GRIPPER, L42)
