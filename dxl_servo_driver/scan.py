@@ -30,6 +30,7 @@ from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
+from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.protocol import MAX_ID, RETURN_DELAY_UNIT_S
 from dxl_servo_driver.serial_port import open_port
@@ -205,8 +206,10 @@ def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int,
     else:   # a Protocol 1.0 table: its angle limits are its mode
         low = _read_register(bus, servo_id, table.item('min_position_limit'))
         high = _read_register(bus, servo_id, table.item('max_position_limit'))
-        if low is not None and high is not None:
-            mode = table.angle_limit_mode(low, high)
+        torque = (_read_register(bus, servo_id, table.item(TORQUE_MODE))
+                  if table.has(TORQUE_MODE) else 0)
+        if low is not None and high is not None and torque is not None:
+            mode = table.angle_limit_mode(low, high, torque)
             mode_raw = table.modes[mode]
     errors = (_read_register(bus, servo_id, table.item('hardware_error_status'))
               if table.has('hardware_error_status') else None)

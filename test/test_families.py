@@ -10,6 +10,7 @@ import math
 from typing import Any, Dict
 
 from dxl_servo_driver.models import model_for
+from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
@@ -18,14 +19,17 @@ import pytest
 # current sensing; the L42-10-S300-R beside the H54: its own units and modes).
 MODELS: Dict[str, int] = {'mx28': 30, 'mx64': 311, 'mx106': 321, 'ph54': 2020, 'h42a': 51201,
                           'gripper': 35074, 'h54': 54024, 'l42': 35072, 'ym070': 4000,
-                          'xl320': 350, 'ax12': 12, 'mx28_1': 29, 'x_on_1': 1020}
-# Joints whose servo speaks Protocol 1.0 (an X servo switched by its Protocol Version).
-PROTOCOLS = {'x_on_1': 1.0, 'ax12': 1.0, 'mx28_1': 1.0}
-# Each joint rests in velocity mode, or current mode where the model has no velocity mode.
-HOME = {name: 'velocity' if 'velocity' in model_for(number).modes else 'current'
+                          'xl320': 350, 'ax12': 12, 'rx28': 28, 'ex106': 107, 'dx117': 117,
+                          'mx28_1': 29, 'mx64_1': 310, 'x_on_1': 1020}
+# Joints whose servo speaks Protocol 1.0: an X servo switched by its Protocol Version says so;
+# a 1.0-only model (AX, RX, EX, DX, MX on 1.0 firmware) is on 1.0 by its `model`.
+PROTOCOLS = {'x_on_1': 1.0}
+# Each joint rests in velocity mode, or current, or position mode: the first its model has.
+HOME = {name: next(mode for mode in ('velocity', 'current', 'position')
+                   if mode in model_for(number).modes)
         for name, number in MODELS.items()}
 JOINTS = {name: {'id': index, 'model': number, 'operating_mode': HOME[name],
-                 'protocol': PROTOCOLS.get(name, 2.0)}
+                 **({'protocol': PROTOCOLS[name]} if name in PROTOCOLS else {})}
           for index, (name, number) in enumerate(MODELS.items(), start=1)}
 IDS = {name: keys['id'] for name, keys in JOINTS.items()}
 # A goal per mode in SI, modest for every model.
@@ -63,9 +67,11 @@ def test_every_mode_takes_goals_in_si_written_in_the_model_s_unit(
         assert response.success, (name, mode, response.message)
         if table.mode_register:
             assert h.reg(IDS[name], table.mode_register) == table.modes[mode]
-        else:   # a Protocol 1.0 table: its CW/CCW Angle Limits say the mode
+        else:   # a Protocol 1.0 table: its angle limits (and torque control) say the mode
+            torque = h.reg(IDS[name], TORQUE_MODE) if table.has(TORQUE_MODE) else 0
             assert table.angle_limit_mode(h.reg(IDS[name], 'min_position_limit'),
-                                          h.reg(IDS[name], 'max_position_limit')) == mode
+                                          h.reg(IDS[name], 'max_position_limit'),
+                                          torque) == mode
         kind, value = (GRIPPER_GOALS if name == 'gripper' else GOALS).get(mode, GOALS[mode])
         response = h.call(f'set_{kind}', name=[name], value=[value])
         assert response.success, (name, mode, response.message)

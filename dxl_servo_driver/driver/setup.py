@@ -19,6 +19,7 @@ from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Ser
 from dxl_servo_driver.errors import (
     CommError, CommTimeout, ConfigurationError, CorruptReply, PortError, StatusError)
 from dxl_servo_driver.models import modes
+from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
 from dxl_servo_driver.tasks import Steps
 
@@ -126,9 +127,11 @@ class Setup:
         yield from self._apply_ram(servo)
 
     def _apply_ram(self, servo: Servo) -> Steps:
-        """RAM configuration and the indirect map (lost at every reboot)."""
+        """RAM configuration, a mode kept in RAM, the indirect map (lost at every reboot)."""
         link = self._link
-        for name, value in servo.joint.registers:
+        ram_mode = [(name, value) for name, value in mode_registers(servo, servo.mode).items()
+                    if servo.model.item(name).area == 'ram']   # the MX(1.0)'s torque control
+        for name, value in [*servo.joint.registers, *ram_mode]:
             if servo.model.item(name).area == 'ram':
                 link.write_verified(servo, name, value)
                 yield
@@ -334,7 +337,8 @@ class Setup:
             else:
                 servo.mode = model.angle_limit_mode(
                     self._link.read(servo, 'min_position_limit'),
-                    self._link.read(servo, 'max_position_limit'))
+                    self._link.read(servo, 'max_position_limit'),
+                    self._link.read(servo, TORQUE_MODE) if model.has(TORQUE_MODE) else 0)
         except (PortError, CommError):
             pass
 
@@ -372,12 +376,15 @@ def mode_registers(servo: Servo, mode: str) -> Dict[str, int]:
     model = servo.model
     if model.mode_register:
         return {model.mode_register: model.modes[mode]}
+    torque = {TORQUE_MODE: 0} if model.has(TORQUE_MODE) else {}
+    if mode == 'current':   # the MX-64/106 (1.0): its angle limits stay as they are
+        return {TORQUE_MODE: 1}
     low, high = model.item('min_position_limit'), model.item('max_position_limit')
     if mode == 'velocity':
-        return {'min_position_limit': 0, 'max_position_limit': 0}
+        return {**torque, 'min_position_limit': 0, 'max_position_limit': 0}
     if mode == 'extended_position':
-        return {'min_position_limit': low.maximum, 'max_position_limit': high.maximum}
-    limits = {'min_position_limit': low.initial, 'max_position_limit': high.initial}
+        return {**torque, 'min_position_limit': low.maximum, 'max_position_limit': high.maximum}
+    limits = {**torque, 'min_position_limit': low.initial, 'max_position_limit': high.initial}
     limits.update(position_limit_registers(servo, mode))
     return limits
 

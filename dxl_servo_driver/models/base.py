@@ -9,7 +9,10 @@ import math
 
 from dxl_servo_driver.errors import ConfigurationError
 
-__all__ = ['datasheet', 'Item', 'Model', 'ModelError', 'Physics', 'VoltagePoint']
+__all__ = ['datasheet', 'Item', 'Model', 'ModelError', 'Physics', 'TORQUE_MODE', 'VoltagePoint']
+
+# A Protocol 1.0 table's switch into current (torque) control (the MX-64/106's RAM item).
+TORQUE_MODE = 'torque_ctrl_mode_enable'
 
 
 @dataclass(frozen=True)
@@ -261,13 +264,16 @@ class Model:
         """Return stall torque over stall current at the nominal voltage."""
         return self.physics.nominal.torque_constant_nm_per_a
 
-    def angle_limit_mode(self, low: int, high: int) -> str:
+    def angle_limit_mode(self, low: int, high: int, torque_mode: int = 0) -> str:
         """
         Return the mode a Protocol 1.0 table's CW/CCW Angle Limits (low, high) select.
 
+        Torque Ctrl Mode Enable set (torque_mode; the MX-64/106): current, whatever the limits.
         Both 0: wheel (velocity) mode; both at the top of their range: multi-turn (the MX's
         extended_position); anything else: joint (position) mode within them.
         """
+        if torque_mode and 'current' in self.modes:
+            return 'current'
         if low == high == 0 and 'velocity' in self.modes:
             return 'velocity'
         if (low == high == self.item('max_position_limit').maximum

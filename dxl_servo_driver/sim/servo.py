@@ -40,6 +40,7 @@ import struct
 from typing import Callable, Protocol
 
 from dxl_servo_driver.models import Model, modes
+from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, CLEAR_MULTI_TURN, encode_status, ErrorCode, fast_sync_size,
@@ -329,10 +330,12 @@ class SimServo:
         named = frozenset(roles.get(name, name) for name in names)
         if model.mode_register and model.mode_register in names:
             named |= {'operating_mode'}
-        if not model.mode_register and named & {'min_position_limit', 'max_position_limit'}:
+        if not model.mode_register and named & {'min_position_limit', 'max_position_limit',
+                                                TORQUE_MODE}:
             memory = self.memory
-            mode = model.angle_limit_mode(memory.get('min_position_limit'),
-                                          memory.get('max_position_limit'))
+            mode = model.angle_limit_mode(
+                memory.get('min_position_limit'), memory.get('max_position_limit'),
+                memory.get(TORQUE_MODE) if memory.has(TORQUE_MODE) else 0)
             memory.set('operating_mode', modes.BY_NAME[mode].number)
             named |= {'operating_mode'}
         return named
