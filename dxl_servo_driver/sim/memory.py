@@ -141,9 +141,12 @@ class Table:
                                for address in range(item.address, item.address + item.size))
         self.ram_initial = tuple((item.name, item.initial) for item in items
                                  if item.area == 'ram' and item.initial)
+        # Where the table powers a goal on at its limit (the X: Goal PWM at PWM Limit), it
+        # follows the limit the EEPROM holds; a table that starts it at 0 (the Y) does not.
         self.goals_from_limits = tuple(
             (goal, limit) for goal, limit in _GOALS_FROM_LIMITS
-            if goal in self.by_name and limit in self.by_name)
+            if goal in self.by_name and limit in self.by_name
+            and self.by_name[goal].initial == self.by_name[limit].initial)
         self.homing = self.by_name['homing_offset']
         # The one-byte items read by address on every packet (Memory.raw[address]).
         self.torque_address = self._byte_address('torque_enable')
