@@ -232,6 +232,7 @@ class ServoDynamics:
         self._pulses_per_rev = model.pulses_per_rev
         self._homing_ignored = model.homing_position_mode_limit
         self._profile_units = profile_units(model)
+        self._goal_pwm_caps = 'pwm' in model.modes
         gains = gain_factors(model)
         self._kpp, self._kpi, self._kpd, self._kff1, self._kff2, self._kvp, self._kvi = (
             gains[name] for name in _GAINS)
@@ -425,7 +426,10 @@ class ServoDynamics:
         overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
 
         pwm_limit = max(0, get('pwm_limit'))
-        out_limit = float(min(abs(get('goal_pwm')), pwm_limit))
+        # Goal PWM caps the output in every mode (the XM430 manual) of a model that has a PWM
+        # mode; a model without one (the Y) has it as a plain register, capped by PWM Limit.
+        out_limit = float(min(abs(get('goal_pwm')), pwm_limit) if self._goal_pwm_caps
+                          else pwm_limit)
         if mode == MODE_PWM:
             out_limit = float(pwm_limit)
         ampere_per_unit = self._ampere_per_unit
