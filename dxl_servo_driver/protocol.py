@@ -384,6 +384,9 @@ class StreamParser:
     later than inter_byte_timeout_s is discarded, as the servo's receiver does.
     """
 
+    # The framing routine: this protocol's; protocol1.StreamParser1 swaps in Protocol 1.0's.
+    _scan = staticmethod(scan_frames)
+
     def __init__(self, inter_byte_timeout_s: float = DEFAULT_INTER_BYTE_TIMEOUT_S) -> None:
         self.inter_byte_timeout_s = inter_byte_timeout_s
         self._buffer = bytearray()
@@ -410,7 +413,7 @@ class StreamParser:
             self._last_byte_s = now_s
         if not buffer:
             return []
-        frames, rest = scan_frames(buffer, resync=False)
+        frames, rest = self._scan(buffer, resync=False)
         del buffer[:rest]
         return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]
 

@@ -23,8 +23,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Dict
 
-from dxl_servo_driver.protocol import (
-    DEFAULT_INTER_BYTE_TIMEOUT_S, Frame, Packet, ParseEvent)
+from dxl_servo_driver.protocol import Frame, Packet, StreamParser
 
 HEADER = b'\xff\xff'
 BROADCAST_ID = 0xFE
@@ -202,45 +201,17 @@ def decode_packet(data: bytes) -> Packet:
     return Packet(data[2], data[4], data[5:-1], data[4])
 
 
-class StreamParser1:
+class StreamParser1(StreamParser):
     """
     Incremental Protocol 1.0 parser (the simulated servos' receiver), as protocol.StreamParser.
 
-    feed() returns the whole packets found, framed by scan_frames() without resync: garbage
-    before a header is skipped, a length below 2 is noise, a packet whose checksum fails is
-    reported with crc_ok False and skipped whole. A partial packet whose next byte comes later
-    than inter_byte_timeout_s is discarded, as the servo's receiver does.
+    feed() returns the whole packets found, framed by this module's scan_frames() without
+    resync: garbage before a header is skipped, a length below 2 is noise, a packet whose
+    checksum fails is reported with crc_ok False and skipped whole. A partial packet whose next
+    byte comes later than inter_byte_timeout_s is discarded, as the servo's receiver does.
     """
 
-    def __init__(self, inter_byte_timeout_s: float = DEFAULT_INTER_BYTE_TIMEOUT_S) -> None:
-        self.inter_byte_timeout_s = inter_byte_timeout_s
-        self._buffer = bytearray()
-        self._last_byte_s: float | None = None
-
-    def reset(self) -> None:
-        """Forget any partial packet."""
-        self._buffer.clear()
-        self._last_byte_s = None
-
-    @property
-    def pending(self) -> int:
-        """Return how many bytes wait for the rest of their packet."""
-        return len(self._buffer)
-
-    def feed(self, chunk: bytes, now_s: float) -> list[ParseEvent]:
-        """Add bytes received at now_s; return the packets completed by them."""
-        buffer = self._buffer
-        if (buffer and self._last_byte_s is not None
-                and now_s - self._last_byte_s > self.inter_byte_timeout_s):
-            buffer.clear()
-        if chunk:
-            buffer += chunk
-            self._last_byte_s = now_s
-        if not buffer:
-            return []
-        frames, rest = scan_frames(buffer, resync=False)
-        del buffer[:rest]
-        return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]
+    _scan = staticmethod(scan_frames)
 
 
 class Protocol1Framer:

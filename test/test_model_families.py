@@ -5,7 +5,6 @@ Every model outside the X series is checked against the ROBOTIS model file dynam
 for it (address and size of every row), and for what the data must hold whatever the family.
 """
 
-import importlib.util
 import math
 import pathlib
 import re
@@ -16,6 +15,7 @@ from dxl_servo_driver.models import (
 from dxl_servo_driver.models import pro_legacy
 from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
+from sdk_model_files import listed_models, needs_sdk, SDK, SDK_ALIASES, SDK_NAMES, sdk_rows, snake
 
 OTHERS = tuple(model for model in ALL_MODELS if model not in X_MODELS)
 # Protocol 1.0 models: no SDK model file (dynamixel-sdk 4.1 ships 2.0 tables only); they are
@@ -26,23 +26,6 @@ PROTOCOL1_NUMBERS = frozenset(model.number for model in ALL_MODELS if model.prot
 NO_SDK_FILE = PROTOCOL1_NUMBERS | frozenset(model.number for model in pro_legacy.MODELS)
 
 
-def _sdk_tables() -> pathlib.Path | None:
-    spec = importlib.util.find_spec('dynamixel_easy_sdk')
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return pathlib.Path(list(spec.submodule_search_locations)[0]) / 'control_table'
-
-
-SDK = _sdk_tables()
-needs_sdk = pytest.mark.skipif(
-    SDK is None, reason='dynamixel_easy_sdk (dynamixel-sdk 4.1) is not installed')
-
-# SDK names that do not snake-case into ours (the X convention; the Y keeps its own names).
-SDK_NAMES = {'Protocol Type': 'protocol_version', 'Secondary(Shadow) ID': 'secondary_id'}
-SDK_ALIASES = {
-    'Indirect Address Write': 'indirect_address_', 'Indirect Address Read': 'indirect_address_',
-    'Indirect Data Write': 'indirect_data_', 'Indirect Data Read': 'indirect_data_',
-}
 # Items a table has beyond its model file, by family, each from the e-manual.
 EXTRAS: dict[str, set[str]] = {
     'MX(2.0)': set(),
@@ -59,17 +42,6 @@ def _label(model: Model) -> str:
     return f'{model.number}-{model.name}'
 
 
-def _sdk_rows(path: pathlib.Path) -> list[tuple[int, int, str]]:
-    lines = path.read_text(encoding='utf-8').splitlines()
-    start = lines.index('[control table]') + 2
-    rows = []
-    for line in lines[start:]:
-        if line.strip():
-            address, size, name = line.split('\t')[:3]
-            rows.append((int(address), int(size), name.strip()))
-    return rows
-
-
 def _type_info(path: pathlib.Path) -> dict[str, float]:
     lines = path.read_text(encoding='utf-8').splitlines()
     info = {}
@@ -81,16 +53,10 @@ def _type_info(path: pathlib.Path) -> dict[str, float]:
     return info
 
 
-def _listed() -> dict[int, str]:
-    assert SDK is not None
-    lines = (SDK / 'dynamixel.model').read_text(encoding='utf-8').splitlines()[1:]
-    return {int(number): name for number, name in (line.split() for line in lines if line)}
-
-
 def _our_name(model: Model, sdk_name: str) -> str:
     if model.family != 'Y' and sdk_name in SDK_NAMES:
         return SDK_NAMES[sdk_name]
-    return re.sub(r'[^0-9a-z]+', '_', sdk_name.lower()).strip('_')
+    return snake(sdk_name)
 
 
 every_other = pytest.mark.parametrize('model', OTHERS, ids=_label)
@@ -102,9 +68,9 @@ def test_every_model_file_row_is_in_the_table(model: Model) -> None:
     assert SDK is not None
     if model.number in NO_SDK_FILE:
         pytest.skip('no SDK model file (test_protocol1_models.py, test_pro_models.py)')
-    path = SDK / _listed()[model.number]
+    path = SDK / listed_models()[model.number]
     seen = set()
-    for address, size, sdk_name in _sdk_rows(path):
+    for address, size, sdk_name in sdk_rows(path):
         if sdk_name in SDK_ALIASES:
             ours = model.by_address(address)
             assert ours.name.startswith(SDK_ALIASES[sdk_name]), (sdk_name, ours)
@@ -125,7 +91,7 @@ def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> 
     assert SDK is not None
     if model.number in NO_SDK_FILE:
         pytest.skip('no SDK model file (test_protocol1_models.py, test_pro_models.py)')
-    path = SDK / _listed()[model.number]
+    path = SDK / listed_models()[model.number]
     info = _type_info(path)
     if model.family in ('XL-320', 'RH-P12-RN'):
         pytest.skip('the model file type info is not per turn here (see the module)')
@@ -142,7 +108,7 @@ def test_position_and_velocity_units_agree_with_the_model_file(model: Model) -> 
 
 @needs_sdk
 def test_the_sdk_lists_every_supported_number_but_one() -> None:
-    listed = _listed()
+    listed = listed_models()
     # XW430-T200 and XM335-T323: only the e-manual numbers them; Protocol 1.0 and the original
     # PRO firmware: no SDK file at all.
     assert set(SUPPORTED) - set(listed) == {1280, 1710} | NO_SDK_FILE

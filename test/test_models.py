@@ -5,7 +5,6 @@ The other families are checked by test_model_families.py.
 """
 
 from dataclasses import replace
-import importlib.util
 import math
 import pathlib
 import re
@@ -16,26 +15,9 @@ from dxl_servo_driver.models import (
 from dxl_servo_driver.models.layout import EEPROM_END
 from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
+from sdk_model_files import listed_models, needs_sdk, SDK, SDK_ALIASES, SDK_NAMES, sdk_rows, snake
 
 
-def _sdk_tables() -> pathlib.Path | None:
-    spec = importlib.util.find_spec('dynamixel_easy_sdk')
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return pathlib.Path(list(spec.submodule_search_locations)[0]) / 'control_table'
-
-
-SDK = _sdk_tables()
-needs_sdk = pytest.mark.skipif(
-    SDK is None, reason='dynamixel_easy_sdk (dynamixel-sdk 4.1) is not installed')
-
-# SDK names that do not snake-case into ours.
-SDK_NAMES = {'Protocol Type': 'protocol_version', 'Secondary(Shadow) ID': 'secondary_id'}
-# Rows of the model files that alias an indirect entry instead of naming an item.
-SDK_ALIASES = {
-    'Indirect Address Write': 'indirect_address_', 'Indirect Address Read': 'indirect_address_',
-    'Indirect Data Write': 'indirect_data_', 'Indirect Data Read': 'indirect_data_',
-}
 # Items our tables have beyond the model files (all from the e-manual or the XM430 manual).
 EXTRAS = {'startup_configuration', 'backup_ready'}
 SEED_ONLY = {'acceleration_limit'}
@@ -59,20 +41,8 @@ def _label(model: Model) -> str:
     return f'{model.number}-fw{model.min_firmware}'
 
 
-def _sdk_rows(path: pathlib.Path) -> list[tuple[int, int, str]]:
-    """Return (address, size, name) of a model file's [control table] section."""
-    lines = path.read_text(encoding='utf-8').splitlines()
-    start = lines.index('[control table]') + 2   # skip the 'Address Size Data Name' header
-    rows = []
-    for line in lines[start:]:
-        if line.strip():
-            address, size, name = line.split('\t')[:3]
-            rows.append((int(address), int(size), name.strip()))
-    return rows
-
-
 def _our_name(sdk_name: str) -> str:
-    return SDK_NAMES.get(sdk_name) or re.sub(r'[^0-9a-z]+', '_', sdk_name.lower()).strip('_')
+    return SDK_NAMES.get(sdk_name) or snake(sdk_name)
 
 
 def _stem(model: Model) -> str:
@@ -94,12 +64,6 @@ def _sdk_file(model: Model) -> pathlib.Path:
     return SDK / f'{_stem(model)}_fw{variants[index + 1].min_firmware - 1}.model'
 
 
-def _dynamixel_model() -> dict[int, str]:
-    assert SDK is not None
-    lines = (SDK / 'dynamixel.model').read_text(encoding='utf-8').splitlines()[1:]
-    return {int(number): name for number, name in (line.split() for line in lines if line)}
-
-
 def _squash(text: str) -> str:
     return re.sub(r'[^0-9a-z]', '', text.lower())
 
@@ -113,7 +77,7 @@ def test_every_model_file_row_is_in_the_table(model: Model) -> None:
     path = _sdk_file(model)
     assert path.is_file(), f'{model.label}: no SDK model file {path.name}'
     seen = set()
-    for address, size, sdk_name in _sdk_rows(path):
+    for address, size, sdk_name in sdk_rows(path):
         if sdk_name in SDK_ALIASES:
             ours = model.by_address(address)
             assert ours.name.startswith(SDK_ALIASES[sdk_name]), (sdk_name, ours)
@@ -132,7 +96,7 @@ def test_every_model_file_row_is_in_the_table(model: Model) -> None:
 @needs_sdk
 def test_dynamixel_model_names_the_files_of_our_models() -> None:
     assert SDK is not None
-    listed = _dynamixel_model()
+    listed = listed_models()
     for number, variants in SUPPORTED.items():
         newest = variants[-1]
         if newest not in X_MODELS:
@@ -149,7 +113,7 @@ def test_dynamixel_model_names_the_files_of_our_models() -> None:
 
 @needs_sdk
 def test_every_other_sdk_model_is_refused_by_name() -> None:
-    for number, file_name in _dynamixel_model().items():
+    for number, file_name in listed_models().items():
         if number in SUPPORTED:
             continue
         reason = unsupported_reason(number)
