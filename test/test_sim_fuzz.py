@@ -82,8 +82,8 @@ def check_replies(replies: list[Reply], requests: list[Packet]) -> None:
     Assert every reply to these packets (those heard whole, in order) is one the protocol allows.
 
     A status from the broadcast id is a fast read's, exactly: it must answer one of the fast
-    reads (Fast Sync or Fast Bulk) heard, each at most once and in order. Every other status is a whole, valid
-    status packet from a servo id, 0..252.
+    reads (Fast Sync or Fast Bulk) heard, each at most once and in order. Every other status is
+    a whole, valid status packet from a servo id, 0..252.
     """
     fast_reads = [request for request in requests if is_fast_sync_read(request)]
     for reply in replies:

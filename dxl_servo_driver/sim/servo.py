@@ -16,8 +16,8 @@ errors.  Choices where the manual is silent (all documented here):
   01 44 58 4C 22 are a Data Range error.  Malformed SYNC/BULK packets (lengths that do not add up)
   are ignored by every servo: they are broadcast, nobody answers.
 - SYNC_READ/FAST_SYNC_READ/SYNC_WRITE/BULK_READ/FAST_BULK_READ/BULK_WRITE are acted on only
-  when sent to the broadcast id; sent to one servo's id they get an Instruction error.  A servo listed twice acts
-  on its first entry.
+  when sent to the broadcast id; sent to one servo's id they get an Instruction error.  A
+  servo listed twice acts on its first entry.
 - Broadcast: only PING (and the sync/bulk reads, by their id lists) is answered; every other
   instruction is carried out silently.  A broadcast FACTORY_RESET 0xFF is ignored (firmware).
 - Writing torque_enable=1 while a hardware error bit that is set in `shutdown` is latched is
