@@ -9,9 +9,11 @@ request coming back (the local echo of a half-duplex adapter: learned, then expe
 cheaply), a status packet from an id asked with the parameter length the request implies (an
 answer), a corrupted frame from an id asked, or anything else (a reply to another id or of
 another length, an earlier reply again, line noise), counted and discarded. One collector reads
-and classifies for every transaction: one-off, broadcast ping, sync read, bulk read. The Fast
-Sync Read's one status packet for all servos has its own parse (its parts, each with a CRC of all
-before it) inside the same collector.
+and classifies for every transaction: one-off, broadcast ping, sync read, bulk read. The one
+status packet for all servos of a Fast Sync Read or Fast Bulk Read has its own parse (its
+parts, each with a CRC of all before it) inside the same collector. The reads of many servos
+(sync, bulk, and their fast forms) are begun and collected apart (SyncRead), so a cycle can do
+other work while the servos answer.
 
 Protocol 1.0 has no instruction byte in its status packets, so our echo is told from an answer
 by comparing the frame with the packet sent, before anything else; a frame equal to one of the
@@ -55,8 +57,8 @@ from dxl_servo_driver.errors import (
 from dxl_servo_driver.models import Item
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, crc16, ERROR_CODE_MASK, ErrorCode,
-    fast_sync_head, fast_sync_size, Frame, Framer, HEADER, Instruction, MAX_ID,
-    parse_fast_sync_status, PROTOCOL_2)
+    fast_status_head, fast_status_size, fast_sync_size, Frame, Framer, HEADER, Instruction,
+    MAX_ID, parse_fast_status, PROTOCOL_2)
 from dxl_servo_driver.protocol1 import (
     error_text as error_text_1, Instruction1, MAX_ADDRESS as MAX_ADDRESS_1,
     MAX_PARAMS as MAX_PARAMS_1, PROTOCOL_1)
@@ -197,21 +199,37 @@ class Collected:
 @dataclass(eq=False)
 class SyncRead:
     """
-    A sync read on the wire, owning the bus while its answers come.
+    A sync or bulk read on the wire, owning the bus while its answers come.
 
-    Made by Bus.begin_sync_read() with the bus lock taken; collect() or abort() (exactly one of
-    them, once, in the same thread) ends it, and they are the only places that lock is released.
+    Made by Bus.begin_sync_read() or Bus.begin_bulk_read() with the bus lock taken; collect()
+    or abort() (exactly one of them, once, in the same thread) ends it, and they are the only
+    places that lock is released.
     """
 
     _bus: 'Bus'
     request: Request
-    length: int
-    address: int
+    length: int     # the data each answer carries (a bulk read: the longest)
+    address: int    # a bulk read: -1 (each record has its own)
     sent_s: float
     deadline_s: float
-    fast: bool      # a Fast Sync Read: one status packet for all
+    fast: bool      # a Fast Sync (or Bulk) Read: one status packet for all
     linger: bool    # read on to the deadline: the last whole answer wins
     done: bool = False
+    bulk: bool = False            # a bulk read: each id its own length (request.lengths)
+    framer: Framer = PROTOCOL_2   # the protocol it went out in (a bulk read may be 1.0's)
+
+    @property
+    def what(self) -> str:
+        """Return what the read is called in the errors it reports."""
+        return ('fast ' if self.fast else '') + ('bulk read' if self.bulk else 'sync read')
+
+    @property
+    def lengths(self) -> Tuple[int, ...]:
+        """Return the data length of each id's answer, in the order asked."""
+        lengths = self.request.lengths
+        if lengths is None:
+            return (self.length,) * len(self.request.ids)
+        return tuple(lengths[servo_id] for servo_id in self.request.ids)
 
     @property
     def ids(self) -> Tuple[int, ...]:
@@ -229,7 +247,7 @@ class SyncRead:
             raise RuntimeError('a sync read collected or aborted already')
         self.done = True
         try:
-            with self._bus.speaking(PROTOCOL_2):   # sync reads are Protocol 2.0's
+            with self._bus.speaking(self.framer):   # the protocol it went out in
                 return self._bus._collect_sync(self)
         finally:
             self._bus.lock.release()
@@ -247,7 +265,7 @@ class SyncRead:
         self.done = True
         bus = self._bus
         bus.mark_dirty()
-        chunk = PROTOCOL_2.status_overhead * len(self.ids) + 4096
+        chunk = self.framer.status_overhead * len(self.ids) + 4096
         try:
             while time.monotonic() < self.deadline_s:
                 dropped = bus._read(chunk, self.deadline_s, to_deadline=True)
@@ -297,7 +315,7 @@ class Bus:
         self._echo_misses = 0
         self._dirty_until = 0.0
         self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...], bool], bytes] = {}
-        self._status_prefixes: Dict[Tuple[Tuple[int, ...], int], List[bytes]] = {}
+        self._status_prefixes: Dict[Tuple[Tuple[int, ...], Tuple[int, ...]], List[bytes]] = {}
         self._read_tag = 0
         self._recent: Deque[bytes] = collections.deque(maxlen=RECENT_PACKETS)
 
@@ -769,11 +787,17 @@ class Bus:
             return fast_sync_size(length, count)
         return (self.framer.status_overhead + length) * count
 
+    def _reply_size(self, lengths: Sequence[int], fast: bool) -> int:
+        """Return the bytes the answers of these data lengths take (fast: in one status)."""
+        if fast:
+            return fast_status_size(lengths)
+        return self.framer.status_overhead * len(lengths) + sum(lengths)
+
     def _collect_sync(self, pending: SyncRead) -> SyncResult:
-        """Collect a sync read's answers (SyncRead.collect, the bus lock held)."""
+        """Collect a sync or bulk read's answers (SyncRead.collect, its framer in force)."""
         ids = pending.ids
-        length = pending.length
-        expected = self._sync_reply_size(length, len(ids), pending.fast)
+        lengths = pending.lengths
+        expected = self._reply_size(lengths, pending.fast)
         echo_size = len(pending.packet) if self.echo else 0
         echoes = self.counters.echoes
         buffer = self._read(echo_size + expected, pending.deadline_s)
@@ -783,45 +807,50 @@ class Bus:
         if pending.fast:
             result = self._collect_fast(pending, buffer)
         else:
-            results = None if pending.linger else self._parse_clean(buffer, ids, length)
+            results = (None if pending.linger or self.framer.version != 2
+                       else self._parse_clean(buffer, ids, lengths))
             if results is not None:
                 return SyncResult(results, True, pending.sent_s, dict.fromkeys(ids, False))
             # An echo not where expected (something came first) is found among the frames.
-            result = self._collect_sync_frames(pending, bytearray(buffer))
+            # No Realtime Tick need date a bulk read's answers (its caller reads what it
+            # likes): an id that answered twice has a late reply among them, maybe after the
+            # answer, and is refused.
+            result = self._collect_sync_frames(pending, bytearray(buffer), pending.what,
+                                               pending.bulk)
         if (echo_size and self.counters.echoes == echoes
                 and any(isinstance(data, bytes) for data in result.data.values())):
             self._echo_missing()
         return result
 
     def _parse_clean(self, buffer: bytes, ids: Tuple[int, ...],
-                     length: int) -> Optional[Dict[int, Union[bytes, CommError]]]:
+                     lengths: Tuple[int, ...]) -> Optional[Dict[int, Union[bytes, CommError]]]:
         """
         Parse the usual case at once: every reply there, in order, unstuffed, error byte 0.
 
-        Each reply must start with exactly the bytes a clean status of that id has (header, id,
-        length, 0x55, error 0) and pass its CRC; anything else returns None and the collector
-        takes the whole buffer.
+        Each reply (of its id's length: a bulk read's differ) must start with exactly the bytes
+        a clean Protocol 2.0 status of that id has (header, id, length, 0x55, error 0) and pass
+        its CRC; anything else returns None and the collector takes the whole buffer.
         """
-        reply_size = self.framer.status_overhead + length
-        if len(buffer) != reply_size * len(ids):
+        overhead = self.framer.status_overhead
+        if len(buffer) != overhead * len(ids) + sum(lengths):
             return None
-        key = (ids, length)
+        key = (ids, lengths)
         prefixes = self._status_prefixes.get(key)
         if prefixes is None:
-            head = struct.pack('<HB', length + 4, Instruction.STATUS) + b'\x00'
-            prefixes = [HEADER + bytes((servo_id,)) + head for servo_id in ids]
+            prefixes = [HEADER + struct.pack('<BHBB', servo_id, length + 4, Instruction.STATUS, 0)
+                        for servo_id, length in zip(ids, lengths)]
             if len(self._status_prefixes) > 64:
                 self._status_prefixes.clear()
             self._status_prefixes[key] = prefixes
         results: Dict[int, Union[bytes, CommError]] = {}
         start = 0
-        for servo_id, prefix in zip(ids, prefixes):
-            body_end = start + reply_size - 2
+        for servo_id, prefix, length in zip(ids, prefixes, lengths):
+            body_end = start + overhead + length - 2
             crc = buffer[body_end] | buffer[body_end + 1] << 8
             if buffer[start:start + 9] != prefix or crc16(buffer[start:body_end]) != crc:
                 return None
             results[servo_id] = buffer[start + 9:body_end]
-            start += reply_size
+            start = body_end + 2
         return results
 
     def _collect_sync_frames(self, pending: SyncRead, buffer: bytearray,
@@ -873,26 +902,30 @@ class Bus:
 
     def _collect_fast(self, pending: SyncRead, buffer: bytes) -> SyncResult:
         """
-        Take apart the one status packet of a Fast Sync Read.
+        Take apart the one status packet of a Fast Sync Read or Fast Bulk Read.
 
         The usual case is exactly one whole packet. Otherwise the packet is looked for after
         whatever came first (a late reply, noise, our own echo) and read on to the deadline
         while it is short; the last one found is the answer (a stale one comes before it).
         Parts that check are taken; a missing part (a silent servo) is a timeout, a part that
-        does not check (and every part after it, whose CRCs cover it) a corrupt reply.
+        does not check (and every part after it, whose CRCs cover it) a corrupt reply. The
+        head's length field counts every length asked, and each part must have its id's: the
+        status of another request (other ids, lengths or order) is refused whole or from the
+        first part that differs; only an earlier status of the very same request passes, and
+        the Realtime Tick the caller reads refuses it.
         """
         ids = pending.ids
-        length = pending.length
-        size = fast_sync_size(length, len(ids))
+        lengths = pending.lengths
+        size = fast_status_size(lengths)
         if len(buffer) == size and not pending.linger:
-            parts, whole = parse_fast_sync_status(buffer, 0, ids, length)
+            parts, whole = parse_fast_status(buffer, 0, ids, lengths)
             if whole:
                 return self._fast_result(pending, parts, True, False)
         data = bytearray(buffer)
-        wanted = fast_sync_head(length, len(ids))
+        wanted = fast_status_head(lengths)
         while True:
             final = time.monotonic() >= pending.deadline_s
-            start, parts, whole = _find_fast_status(data, wanted, ids, length)
+            start, parts, whole = _find_fast_status(data, wanted, ids, lengths)
             missing = size - (len(data) - start) if start >= 0 else size
             if final or (not pending.linger and (whole or missing <= 0)):
                 break
@@ -910,16 +943,17 @@ class Bus:
                      clean: bool, complete: bool) -> SyncResult:
         results: Dict[int, Union[bytes, CommError]] = {}
         alerts: Dict[int, bool] = {}
+        what = pending.what
         for servo_id in pending.ids:
             part = parts.get(servo_id)
             if part is None:
                 results[servo_id] = self._missing(
-                    servo_id, complete, 'its part of the fast sync read did not check',
-                    'no part in the fast sync read')
+                    servo_id, complete, f'its part of the {what} did not check',
+                    f'no part in the {what}')
                 continue
             error, data = part
             alerts[servo_id] = bool(error & ALERT_BIT)
-            results[servo_id] = self._answer(servo_id, error, data, 'fast sync read')
+            results[servo_id] = self._answer(servo_id, error, data, what)
         return SyncResult(results, clean, pending.sent_s, alerts)
 
     def bulk_read(self, requests: Sequence[Tuple[int, int, int]],
@@ -927,56 +961,71 @@ class Bus:
         """
         Read (id, address, length) of several servos with one BULK_READ; hold the bus meanwhile.
 
-        The status packets come back one per servo, in the order asked, and are collected as a
-        sync read's are (an id's answer is refused when it came before that of an id asked
-        earlier, or is of another length, or corrupt); each id maps to its data or to the
-        CommError saying why there is none. When the bus is suspicious the replies are read to
-        the deadline and each id's last answer wins.
+        In the framer's protocol (None: the bus's default). The status packets come back one
+        per servo, in the order asked, and are collected as a sync read's are (an id's answer is
+        refused when it came before that of an id asked earlier, or is of another length, or
+        corrupt, or came twice); each id maps to its data or to the CommError saying why there
+        is none. When the bus is suspicious the replies are read to the deadline and each id's
+        last answer wins.
         """
         with self.speaking(framer):
-            return self._bulk_read(requests)
+            return self.begin_bulk_read(requests, linger=self.dirty,
+                                        framer=self.framer).collect()
 
-    def _bulk_read(self, requests: Sequence[Tuple[int, int, int]]) -> SyncResult:
+    def begin_bulk_read(self, requests: Sequence[Tuple[int, int, int]], fast: bool = False,
+                        linger: bool = False, framer: Optional[Framer] = None) -> SyncRead:
+        """
+        Send a BULK_READ (FAST_BULK_READ when fast) of (id, address, length) records, the bus held.
+
+        Returns at once a SyncRead that owns the bus until its collect() or abort(), in the
+        same thread, as begin_sync_read() does (linger likewise). The answers come in the order
+        of the records, each of its record's length: separate status packets, or with fast one
+        status packet of parts (a Fast Sync Read's, of per-id lengths). framer: the protocol
+        (None: 2.0, as sync reads; 1.0 has a bulk read but no fast one); every id must speak
+        it. BadRequest for an id asked twice, none, or one of the other protocol.
+        """
+        framer = PROTOCOL_2 if framer is None else framer
         records = [(int(servo_id), int(address), int(length))
                    for servo_id, address, length in requests]
         ids = tuple(servo_id for servo_id, _, _ in records)
         if not ids or len(set(ids)) != len(ids):
             raise BadRequest(f'a bulk read asks each id once, at least one: got {list(ids)}')
+        version = framer.version
+        if fast and version == 1:
+            raise BadRequest('fast bulk read does not exist in Protocol 1.0 (use bulk_read)')
+        others = [servo_id for servo_id in ids if self.framer_for(servo_id).version != version]
+        if others:
+            raise BadRequest(f'ids {others} do not speak Protocol {version}.0: a bulk read '
+                             'reaches the servos of one protocol')
         lengths = {servo_id: length for servo_id, _, length in records}
+        self.lock.acquire()
+        try:
+            with self.speaking(framer):
+                packet = self._bulk_read_packet(records, fast)
+                request = self._request(packet, ids, max(lengths.values()), lengths)
+                expected = self._reply_size([length for _, _, length in records], fast)
+                sent_s, written_s = self._send(packet)
+        except BaseException:
+            self.lock.release()
+            raise
+        deadline = written_s + self.reply_timeout_s(expected, len(ids), len(packet))
+        return SyncRead(self, request, max(lengths.values()), -1, sent_s, deadline, fast, linger,
+                        bulk=True, framer=framer)
+
+    def _bulk_read_packet(self, records: List[Tuple[int, int, int]], fast: bool) -> bytes:
+        """Return a bulk read's packet in the framer in force (1.0: never fast)."""
         if self.framer.version == 1:
             params = bytearray((0x00,))   # the e-manual's Protocol 1.0 bulk read starts so
             for servo_id, address, length in records:
                 _check_reach_1(address, length)
                 params += bytes((length, servo_id, address))
-            instruction = int(Instruction1.BULK_READ)
-        else:
-            params = bytearray()
-            for servo_id, address, length in records:
-                params += struct.pack('<BHH', servo_id, address, length)
-            instruction = int(Instruction.BULK_READ)
-        packet = self.framer.encode(BROADCAST_ID, instruction, bytes(params))
-        request = self._request(packet, ids, max(lengths.values()), lengths)
-        overhead = self.framer.status_overhead
-        expected = sum(overhead + length for length in lengths.values())
-        with self.lock:
-            linger = self.dirty
-            sent_s, written_s = self._send(packet)
-            deadline = written_s + self.reply_timeout_s(expected, len(ids), len(packet))
-            pending = SyncRead(self, request, max(lengths.values()), -1, sent_s, deadline,
-                               False, linger, done=True)
-            echo_size = len(packet) if self.echo else 0
-            echoes = self.counters.echoes
-            buffer = self._read(echo_size + expected, deadline)
-            if echo_size and buffer[:echo_size] == packet:
-                buffer = buffer[echo_size:]
-                self._echo_seen()
-            # No Realtime Tick dates a bulk read's answers (its caller reads what it likes):
-            # an id that answered twice has a late reply among them, maybe after the answer.
-            result = self._collect_sync_frames(pending, bytearray(buffer), 'bulk read', True)
-            if (echo_size and self.counters.echoes == echoes
-                    and any(isinstance(data, bytes) for data in result.data.values())):
-                self._echo_missing()
-        return result
+            return self.framer.encode(BROADCAST_ID, Instruction1.BULK_READ, bytes(params))
+        params = bytearray()
+        for servo_id, address, length in records:
+            params += struct.pack('<BHH', servo_id, address, length)
+        return self.framer.encode(
+            BROADCAST_ID, Instruction.FAST_BULK_READ if fast else Instruction.BULK_READ,
+            bytes(params))
 
     def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]],
                    framer: Optional[Framer] = None) -> int:
@@ -1019,10 +1068,10 @@ def _check_reach_1(address: int, length: int, other_params: int = 0) -> None:
                          f'0..{MAX_ADDRESS_1} only, {MAX_PARAMS_1} parameters a packet')
 
 
-def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...], length: int
-                      ) -> Tuple[int, Dict[int, Tuple[int, bytes]], bool]:
+def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...],
+                      lengths: Tuple[int, ...]) -> Tuple[int, Dict[int, Tuple[int, bytes]], bool]:
     """
-    Return where the Fast Sync Read status in data starts, its parts, and whether it is whole.
+    Return where the fast read's status in data starts, its parts, and whether it is whole.
 
     The last whole packet wins (a stale one comes first); with none whole, the one with the
     most parts (the head's bytes could also occur inside data). Start -1: no head at all.
@@ -1030,7 +1079,7 @@ def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...], length
     best: Tuple[int, Dict[int, Tuple[int, bytes]], bool] = (-1, {}, False)
     start = data.find(head)
     while start >= 0:
-        parts, whole = parse_fast_sync_status(data, start, ids, length)
+        parts, whole = parse_fast_status(data, start, ids, lengths)
         if whole or best[0] < 0 or (not best[2] and len(parts) >= len(best[1])):
             best = (start, parts, whole)
         start = data.find(head, start + 1)

@@ -13,7 +13,7 @@ from enum import IntEnum
 import importlib
 import os
 import struct
-from typing import cast, Protocol
+from typing import cast, Protocol, Sequence
 
 HEADER = b'\xff\xff\xfd\x00'
 BROADCAST_ID = 0xFE
@@ -29,7 +29,8 @@ BITS_PER_BYTE = 10
 STATUS_OVERHEAD = 11        # header 4, id, length 2, instruction, error, crc 2
 INSTRUCTION_OVERHEAD = 10   # header 4, id, length 2, instruction, crc 2
 READ_PACKET_SIZE = INSTRUCTION_OVERHEAD + 4   # READ: address 2, length 2
-# Fast Sync Read: one status packet for every servo asked (see encode_fast_sync_status).
+# Fast Sync Read and Fast Bulk Read: one status packet for every servo asked (see
+# encode_fast_status).
 FAST_HEAD_SIZE = 8          # header 4, id FE, length 2, instruction 0x55
 FAST_PART_OVERHEAD = 4      # error, id, crc 2 around each servo's data
 # Upper bound of the length field this parser accepts (the SDK's own buffers are 1024 bytes);
@@ -59,6 +60,7 @@ class Instruction(IntEnum):
     FAST_SYNC_READ = 0x8A
     BULK_READ = 0x92
     BULK_WRITE = 0x93
+    FAST_BULK_READ = 0x9A
 
 
 class ErrorCode(IntEnum):
@@ -292,28 +294,39 @@ def scan_frames(buffer: bytes | bytearray, pos: int = 0,
         pos = stop if crc_ok or not resync else start + 1
 
 
+def fast_status_size(lengths: Sequence[int]) -> int:
+    """Return the bytes of a fast read's status whose parts carry these data lengths."""
+    return FAST_HEAD_SIZE + sum(lengths) + len(lengths) * FAST_PART_OVERHEAD
+
+
+def fast_status_head(lengths: Sequence[int]) -> bytes:
+    """Return the first bytes of a fast read's status whose parts carry these data lengths."""
+    return HEADER + struct.pack('<BHB', BROADCAST_ID,
+                                1 + sum(lengths) + len(lengths) * FAST_PART_OVERHEAD,
+                                Instruction.STATUS)
+
+
 def fast_sync_size(length: int, count: int) -> int:
     """Return the bytes of a Fast Sync Read status for count servos of length bytes each."""
-    return FAST_HEAD_SIZE + count * (length + FAST_PART_OVERHEAD)
+    return fast_status_size((length,) * count)
 
 
 def fast_sync_head(length: int, count: int) -> bytes:
     """Return the first bytes of a Fast Sync Read status for count servos of length bytes."""
-    return HEADER + struct.pack('<BHB', BROADCAST_ID, 1 + count * (length + FAST_PART_OVERHEAD),
-                                Instruction.STATUS)
+    return fast_status_head((length,) * count)
 
 
-def encode_fast_sync_status(parts: list[tuple[int, int, bytes]], count: int) -> bytes:
+def encode_fast_status(parts: Sequence[tuple[int, int, bytes]], lengths: Sequence[int]) -> bytes:
     """
-    Return a Fast Sync Read status packet as it goes on the wire.
+    Return the one status packet of a Fast Sync Read or Fast Bulk Read as it goes on the wire.
 
     Each (error, id, data) part is followed by the CRC of every byte before it, so the last CRC
-    is the packet's own. The length field counts count servos (all those asked: the first
-    servo sends the header before the others answer), so a part left out makes the packet
+    is the packet's own. The length field counts the data lengths of every servo asked (the
+    first servo sends the header before the others answer), so a part left out makes the packet
     shorter than its length field says. No byte stuffing: the length is fixed before the data
     is known (the SDK reads these packets unstuffed too).
     """
-    packet = bytearray(fast_sync_head(len(parts[0][2]) if parts else 0, count))
+    packet = bytearray(fast_status_head(lengths))
     crc = crc16(packet)
     for error, servo_id, data in parts:
         start = len(packet)
@@ -326,38 +339,61 @@ def encode_fast_sync_status(parts: list[tuple[int, int, bytes]], count: int) -> 
     return bytes(packet)
 
 
-def parse_fast_sync_status(buffer: bytes | bytearray, start: int, ids: tuple[int, ...],
-                           length: int) -> tuple[dict[int, tuple[int, bytes]], bool]:
-    """
-    Take apart a Fast Sync Read status that begins at buffer[start].
+def encode_fast_sync_status(parts: list[tuple[int, int, bytes]], count: int) -> bytes:
+    """Return a Fast Sync Read status for count servos asked (encode_fast_status)."""
+    return encode_fast_status(parts, (len(parts[0][2]) if parts else 0,) * count)
 
-    Returns id -> (error byte, data) for every part whose CRC (over all bytes before it) checks
-    and whose id is one asked, after the id of the part before it (parts come in the order
-    asked; a silent servo's part is missing, not empty), and whether the packet was whole: its
-    head as expected, every part there and checked, the last one ending the packet. Parsing
-    stops at the first part that does not check (every later CRC covers it).
+
+def encode_fast_bulk_status(parts: Sequence[tuple[int, int, bytes]],
+                            lengths: Sequence[int]) -> bytes:
+    """Return a Fast Bulk Read status; lengths: every record's, in order (encode_fast_status)."""
+    return encode_fast_status(parts, lengths)
+
+
+def parse_fast_status(buffer: bytes | bytearray, start: int, ids: tuple[int, ...],
+                      lengths: Sequence[int]) -> tuple[dict[int, tuple[int, bytes]], bool]:
+    """
+    Take apart the status of a Fast Sync Read or Fast Bulk Read that begins at buffer[start].
+
+    ids are the servos asked in the order asked, lengths the data length each was asked for (a
+    Fast Sync Read's all equal). Returns id -> (error byte, data) for every part whose id is
+    one asked, after the id of the part before it (parts come in the order asked; a silent
+    servo's part is missing, not empty), that has its id's length and whose CRC (over all
+    bytes before it) checks, and whether the packet was whole: its head as expected, every
+    part there and checked, the last one ending the packet. Parsing stops at the first part
+    that does not check (every later CRC covers it, and its length says where the next one
+    starts).
     """
     parts: dict[int, tuple[int, bytes]] = {}
-    if buffer[start:start + FAST_HEAD_SIZE] != fast_sync_head(length, len(ids)):
+    if buffer[start:start + FAST_HEAD_SIZE] != fast_status_head(lengths):
         return parts, False
     order = {servo_id: index for index, servo_id in enumerate(ids)}
-    part_size = length + FAST_PART_OVERHEAD
     crc = crc16(buffer[start:start + FAST_HEAD_SIZE])
     pos = start + FAST_HEAD_SIZE
+    end = len(buffer)
     last = -1
-    while pos + part_size <= len(buffer) and len(parts) < len(ids):
-        body_end = pos + part_size - 2
-        crc = crc16(buffer[pos:body_end], crc)
-        if crc != buffer[body_end] | (buffer[body_end + 1] << 8):
-            break
+    while pos + FAST_PART_OVERHEAD <= end and len(parts) < len(ids):
+        # The id, not yet checked, gives the part's length: a wrong one fails the CRC below.
         index = order.get(buffer[pos + 1], -1)
         if index <= last:
+            break
+        body_end = pos + 2 + lengths[index]
+        if body_end + 2 > end:
+            break
+        crc = crc16(buffer[pos:body_end], crc)
+        if crc != buffer[body_end] | (buffer[body_end + 1] << 8):
             break
         last = index
         parts[buffer[pos + 1]] = (buffer[pos], bytes(buffer[pos + 2:body_end]))
         crc = crc16(buffer[body_end:body_end + 2], crc)
-        pos += part_size
+        pos = body_end + 2
     return parts, len(parts) == len(ids)
+
+
+def parse_fast_sync_status(buffer: bytes | bytearray, start: int, ids: tuple[int, ...],
+                           length: int) -> tuple[dict[int, tuple[int, bytes]], bool]:
+    """Take apart a Fast Sync Read status: parse_fast_status with every length equal."""
+    return parse_fast_status(buffer, start, ids, (length,) * len(ids))
 
 
 def decode_packet(data: bytes) -> Packet:

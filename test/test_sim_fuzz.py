@@ -2,7 +2,8 @@
 Fuzzing the simulated bus with random and mutated byte streams.
 
 They never crash it, every status it sends is one the protocol allows (a whole status packet from
-a servo id, or a Fast Sync Read's one status packet from the broadcast id), and a packet that
+a servo id, or a Fast Sync or Fast Bulk Read's one status packet from the broadcast id), and a
+packet that
 fails its CRC is never answered with anything but a CRC error status.
 
 Budgets are multiples of the Hypothesis profile's (test/conftest.py): 100 examples in make test,
@@ -13,8 +14,8 @@ import struct
 
 from dxl_servo_driver.models import xm430
 from dxl_servo_driver.protocol import (
-    BROADCAST_ID, decode_packet, encode_instruction, encode_status, ErrorCode, fast_sync_size,
-    Instruction, MAX_ID, Packet, parse_fast_sync_status, StreamParser)
+    BROADCAST_ID, decode_packet, encode_instruction, encode_status, ErrorCode, fast_status_size,
+    Instruction, MAX_ID, Packet, parse_fast_status, StreamParser)
 from dxl_servo_driver.sim.bus import Reply, SimBus
 from dxl_servo_driver.sim.memory import Memory, TableError
 from hypothesis import example, given, settings, strategies as st
@@ -36,36 +37,53 @@ class Clock:
         return self.now_s
 
 
+FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
+
+
 def is_fast_sync_read(packet: Packet) -> bool:
-    """Tell whether a packet is a Fast Sync Read: instruction 0x8A sent to the broadcast id."""
-    return packet.instruction == Instruction.FAST_SYNC_READ and packet.servo_id == BROADCAST_ID
+    """Tell whether a packet is a fast read: instruction 0x8A or 0x9A sent to the broadcast id."""
+    return packet.instruction in FAST_READS and packet.servo_id == BROADCAST_ID
+
+
+def asked(request: Packet) -> dict[int, int]:
+    """Return id -> data length of the servos a fast read asks, in order (a repeat once)."""
+    params = request.params
+    if request.instruction == Instruction.FAST_SYNC_READ:
+        if len(params) < 5:
+            return {}
+        return dict.fromkeys(params[4:], params[2] | params[3] << 8)
+    records: dict[int, int] = {}
+    if params and not len(params) % 5:
+        for start in range(0, len(params), 5):
+            records.setdefault(params[start], params[start + 3] | params[start + 4] << 8)
+    return records
 
 
 def answers_fast_sync_read(data: bytes, request: Packet) -> bool:
     """
-    Tell whether data is the status packet that answers the Fast Sync Read request.
+    Tell whether data is the status packet that answers the fast read request.
 
     One packet from the broadcast id for all the servos asked: a head whose length counts every
     id asked (a repeated id once), then one part per servo that answers, in the order asked:
-    error, id, the bytes asked, a CRC over everything before it. A silent servo's part is left
-    out (protocol.encode_fast_sync_status), so the packet may be shorter than its length field,
-    but every byte of it is a checked part of a servo asked.
+    error, id, the bytes asked (in a Fast Bulk Read, its record's), a CRC over everything
+    before it. A silent servo's part is left out (protocol.encode_fast_status), so the packet
+    may be shorter than its length field, but every byte of it is a checked part of a servo
+    asked.
     """
-    if len(request.params) < 5:
+    lengths = asked(request)
+    if not lengths:
         return False
-    length = request.params[2] | request.params[3] << 8
-    ids = tuple(dict.fromkeys(request.params[4:]))
-    parts, _ = parse_fast_sync_status(data, 0, ids, length)
-    return bool(parts) and len(data) == fast_sync_size(length, len(parts))
+    parts, _ = parse_fast_status(data, 0, tuple(lengths), tuple(lengths.values()))
+    return bool(parts) and len(data) == fast_status_size([lengths[i] for i in parts])
 
 
 def check_replies(replies: list[Reply], requests: list[Packet]) -> None:
     """
     Assert every reply to these packets (those heard whole, in order) is one the protocol allows.
 
-    A status from the broadcast id is a Fast Sync Read's, exactly: it must answer one of the
-    Fast Sync Reads heard, each at most once and in order. Every other status is a whole, valid
-    status packet from a servo id, 0..252.
+    A status from the broadcast id is a fast read's, exactly: it must answer one of the fast
+    reads (Fast Sync or Fast Bulk) heard, each at most once and in order. Every other status is
+    a whole, valid status packet from a servo id, 0..252.
     """
     fast_reads = [request for request in requests if is_fast_sync_read(request)]
     for reply in replies:
@@ -73,7 +91,7 @@ def check_replies(replies: list[Reply], requests: list[Packet]) -> None:
         if data[4:5] == bytes((BROADCAST_ID,)):
             while fast_reads and not answers_fast_sync_read(data, fast_reads[0]):
                 del fast_reads[0]
-            assert fast_reads, f'{data.hex()}: a status from the broadcast id, no Fast Sync Read'
+            assert fast_reads, f'{data.hex()}: a status from the broadcast id, no fast read'
             del fast_reads[0]
             continue
         packet = decode_packet(data)

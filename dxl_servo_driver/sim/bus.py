@@ -4,10 +4,11 @@ The simulated servos on one bus: bytes in, status packets out, plus fault inject
 One StreamParser sees the host's bytes; each whole packet goes to every powered, plugged servo
 listening at the baud the bytes came at.  Replies come back in wire order: for SYNC_READ the
 order of the ids in the packet, for BULK_READ the order of its records, for a broadcast PING
-ascending id; FAST_SYNC_READ parts are framed into one status packet in the order asked.
-Fault injection acts per servo object (found by its current id): a dropped status is lost, a
-corrupted one has one bit flipped after the header so the receiver's CRC check fails (CRC-16
-catches every single-bit error); in a Fast Sync Read that is the servo's part.
+ascending id; FAST_SYNC_READ and FAST_BULK_READ parts are framed into one status packet in the
+order asked (a Fast Bulk Read's parts each of its own record's length). Fault injection acts
+per servo object (found by its current id): a dropped status is lost, a corrupted one has one
+bit flipped after the header so the receiver's CRC check fails (CRC-16 catches every
+single-bit error); in a fast read that is the servo's part.
 
 Every byte goes to two receivers, a Protocol 2.0 and a Protocol 1.0 StreamParser: each servo
 hears the packets of the protocol its Protocol Version register names (sim/protocol1.py answers
@@ -26,8 +27,8 @@ from typing import Callable, Iterable, Mapping
 
 from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
-    BROADCAST_ID, encode_fast_sync_status, FAST_HEAD_SIZE, Instruction, MAX_ID, Packet,
-    ParseEvent, StreamParser)
+    BROADCAST_ID, encode_fast_status, FAST_HEAD_SIZE, Instruction, MAX_ID, Packet, ParseEvent,
+    StreamParser)
 from dxl_servo_driver.protocol1 import StreamParser1
 from dxl_servo_driver.sim import protocol1
 from dxl_servo_driver.sim.control import ERROR_KINDS
@@ -37,6 +38,7 @@ from dxl_servo_driver.sim.servo import SimServo
 
 # Replies of one packet stay in wire order even if two servos share an id (bus order then).
 _LAST = 1 << 16
+_FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
 
 
 @dataclass(frozen=True)
@@ -46,7 +48,7 @@ class Reply:
     data: bytes
     servo_id: int
     return_delay_s: float
-    flip_bit: int = -1   # a Fast Sync Read part: the bit corrupted once framed (-1: none)
+    flip_bit: int = -1   # a fast read's part: the bit corrupted once framed (-1: none)
 
 
 class _Slot:
@@ -117,9 +119,10 @@ class SimBus:
             replies: list[Reply] = []
             for event in events:
                 order = _reply_order(event.packet) if event.crc_ok else None
-                # Sent to one id, 0x8A gets that servo's ordinary Instruction-error status.
+                # Sent to one id, 0x8A or 0x9A gets that servo's ordinary Instruction-error
+                # status.
                 fast = (order is not None
-                        and event.packet.instruction == Instruction.FAST_SYNC_READ
+                        and event.packet.instruction in _FAST_READS
                         and event.packet.servo_id == BROADCAST_ID)
                 answered: list[tuple[int, int, Reply]] = []
                 for index, slot in enumerate(self._slots):
@@ -138,8 +141,9 @@ class SimBus:
                     answered.append((rank, index, reply))
                 answered.sort(key=lambda entry: (entry[0], entry[1]))
                 if fast and order is not None:
-                    replies.extend(_fast_sync_reply([entry[2] for entry in answered],
-                                                    len(order)))
+                    if answered:   # (a malformed request, answered by none, has no lengths)
+                        replies.extend(_fast_reply([entry[2] for entry in answered],
+                                                   _fast_lengths(event.packet, len(order))))
                 else:
                     replies.extend(entry[2] for entry in answered)
             for event in events1:
@@ -196,7 +200,7 @@ class SimBus:
         return Reply(status, servo_id, slot.servo.return_delay_s)
 
     def _inject_part(self, slot: _Slot, part: bytes, servo_id: int) -> Reply | None:
-        """Fault injection for one servo's part of a Fast Sync Read (framed afterwards)."""
+        """Fault injection for one servo's part of a fast read (framed afterwards)."""
         rng = self._random
         if slot.drop_probability and rng.random() < slot.drop_probability:
             return None
@@ -340,18 +344,19 @@ def _probability(probability: float) -> float:
     return probability
 
 
-def _fast_sync_reply(parts: list[Reply], count: int) -> list[Reply]:
+def _fast_reply(parts: list[Reply], lengths: tuple[int, ...]) -> list[Reply]:
     """
-    Frame the parts of a Fast Sync Read into the one status packet the servos put on the wire.
+    Frame the parts of a fast read into the one status packet the servos put on the wire.
 
-    The manual does not say what real servos do when one of those asked is silent; here its
-    part is left out and the rest follow, so the packet is shorter than its length field. The
-    first servo that answers sets the return delay.
+    lengths are those of every servo asked (the length field counts them all). The manual does
+    not say what real servos do when one of those asked is silent; here its part is left out
+    and the rest follow, so the packet is shorter than its length field. The first servo that
+    answers sets the return delay.
     """
     if not parts:
         return []
-    packet = bytearray(encode_fast_sync_status(
-        [(part.data[0], part.data[1], part.data[2:]) for part in parts], count))
+    packet = bytearray(encode_fast_status(
+        [(part.data[0], part.data[1], part.data[2:]) for part in parts], lengths))
     offset = FAST_HEAD_SIZE
     for part in parts:
         if part.flip_bit >= 0:
@@ -360,12 +365,25 @@ def _fast_sync_reply(parts: list[Reply], count: int) -> list[Reply]:
     return [Reply(bytes(packet), BROADCAST_ID, parts[0].return_delay_s)]
 
 
+def _fast_lengths(packet: Packet, count: int) -> tuple[int, ...]:
+    """Return the data lengths of the count servos a well-formed fast read asks, in order."""
+    params = packet.params
+    if packet.instruction == Instruction.FAST_SYNC_READ:
+        return (params[2] | params[3] << 8,) * count
+    # A Fast Bulk Read: each id's first record (the one its servo answers).
+    lengths: dict[int, int] = {}
+    for start in range(0, len(params) - 4, 5):
+        lengths.setdefault(params[start], params[start + 3] | params[start + 4] << 8)
+    return tuple(lengths.values())
+
+
 def _reply_order(packet: Packet) -> dict[int, int] | None:
     """Return id -> wire rank for packets answered by several servos, None for id order."""
     params = packet.params
     if packet.instruction in (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ):
         ids = params[4:]
-    elif packet.instruction == Instruction.BULK_READ and packet.servo_id == BROADCAST_ID:
+    elif (packet.instruction in (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
+          and packet.servo_id == BROADCAST_ID):
         ids = params[0::5] if len(params) % 5 == 0 else b''
     else:
         return None

@@ -15,9 +15,9 @@ errors.  Choices where the manual is silent (all documented here):
   error.  A FACTORY_RESET option other than 0x01/0x02/0xFF and CLEAR bytes other than
   01 44 58 4C 22 are a Data Range error.  Malformed SYNC/BULK packets (lengths that do not add up)
   are ignored by every servo: they are broadcast, nobody answers.
-- SYNC_READ/FAST_SYNC_READ/SYNC_WRITE/BULK_READ/BULK_WRITE are acted on only when sent to the
-  broadcast id; sent to one servo's id they get an Instruction error.  A servo listed twice acts
-  on its first entry.
+- SYNC_READ/FAST_SYNC_READ/SYNC_WRITE/BULK_READ/FAST_BULK_READ/BULK_WRITE are acted on only
+  when sent to the broadcast id; sent to one servo's id they get an Instruction error.  A
+  servo listed twice acts on its first entry.
 - Broadcast: only PING (and the sync/bulk reads, by their id lists) is answered; every other
   instruction is carried out silently.  A broadcast FACTORY_RESET 0xFF is ignored (firmware).
 - Writing torque_enable=1 while a hardware error bit that is set in `shutdown` is latched is
@@ -43,7 +43,7 @@ from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
 from dxl_servo_driver.protocol import (
-    ALERT_BIT, BROADCAST_ID, CLEAR_MULTI_TURN, encode_status, ErrorCode, fast_sync_size,
+    ALERT_BIT, BROADCAST_ID, CLEAR_MULTI_TURN, encode_status, ErrorCode, fast_status_size,
     Instruction, MAX_ID, MAX_PACKET_LENGTH, ParseEvent, RETURN_DELAY_UNIT_S)
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
@@ -53,9 +53,9 @@ _ADDR_LEN = struct.Struct('<HH')
 _U16 = struct.Struct('<H')
 _KIND_PING, _KIND_READ, _KIND_OTHER = 0, 1, 2
 _READ_INSTRUCTIONS = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ,
-                      Instruction.BULK_READ)
+                      Instruction.BULK_READ, Instruction.FAST_BULK_READ)
 _SYNC_BULK = (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.FAST_SYNC_READ,
-              Instruction.BULK_READ, Instruction.BULK_WRITE)
+              Instruction.BULK_READ, Instruction.BULK_WRITE, Instruction.FAST_BULK_READ)
 
 
 class Dynamics(Protocol):
@@ -468,14 +468,43 @@ class SimServo:
         A request whose one status packet could not be framed (longer than a packet can be:
         the manual says nothing of it) is ignored, as malformed sync packets are.
         """
+        if len(params) < 5 or my_id not in params[4:]:
+            return None
+        address, length = _ADDR_LEN.unpack_from(params)
+        count = len(dict.fromkeys(params[4:]))
+        return self._fast_part(my_id, address, length, (length,) * count)
+
+    def _fast_bulk_read(self, my_id: int, broadcast: bool, params: bytes,
+                        now_s: float) -> bytes | None:
+        """
+        Return this servo's part of a Fast Bulk Read (0x9A): error, id, its own record's data.
+
+        As a Fast Sync Read's part (_fast_sync_read), from its own (address, length) record;
+        a servo listed twice answers its first record. The SDK's Fast Bulk Read has the same
+        parts and CRCs as its Fast Sync Read, the firmware that has one is taken to have the
+        other.
+        """
+        if not params or len(params) % 5:
+            return None
+        records: dict[int, tuple[int, int]] = {}
+        for start in range(0, len(params), 5):
+            address, length = _ADDR_LEN.unpack_from(params, start + 1)
+            records.setdefault(params[start], (address, length))
+        record = records.get(my_id)
+        if record is None:
+            return None
+        lengths = tuple(length for _, length in records.values())
+        return self._fast_part(my_id, record[0], record[1], lengths)
+
+    def _fast_part(self, my_id: int, address: int, length: int,
+                   lengths: tuple[int, ...]) -> bytes | None:
+        """Return this servo's part of a fast read whose parts carry lengths, if it answers."""
         memory = self.memory
         if not self.model.has_fast_sync_read(memory.get('firmware_version')):
             return None
-        if (len(params) < 5 or my_id not in params[4:]
-                or memory.raw[self._status_return_address] < 1):
+        if memory.raw[self._status_return_address] < 1:
             return None
-        address, length = _ADDR_LEN.unpack_from(params)
-        if fast_sync_size(length, len(params) - 4) > MAX_PACKET_LENGTH:
+        if fast_status_size(lengths) > MAX_PACKET_LENGTH:
             return None
         try:
             data = memory.read(address, length)
@@ -556,4 +585,5 @@ _HANDLERS: dict[int, Callable[[SimServo, int, bool, bytes, float], 'bytes | None
     Instruction.FAST_SYNC_READ: SimServo._fast_sync_read,
     Instruction.BULK_READ: SimServo._bulk_read,
     Instruction.BULK_WRITE: SimServo._bulk_write,
+    Instruction.FAST_BULK_READ: SimServo._fast_bulk_read,
 }
