@@ -13,7 +13,8 @@ from typing import Callable, Mapping, Optional
 
 from dxl_servo_driver.models import Item, Model, modes
 from dxl_servo_driver.protocol import (
-    BITS_PER_BYTE, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
+    BITS_PER_BYTE, fast_status_size, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S,
+    STATUS_OVERHEAD)
 from dxl_servo_driver.protocol1 import (
     INSTRUCTION_OVERHEAD as INSTRUCTION_OVERHEAD_1, STATUS_OVERHEAD as STATUS_OVERHEAD_1)
 
@@ -386,6 +387,16 @@ def sync_read_bytes(n_servos: int, data_length: int) -> int:
 def fast_sync_read_bytes(n_servos: int, data_length: int) -> int:
     """Return the bytes on the wire of one fast sync read (instruction + its one status)."""
     return INSTRUCTION_OVERHEAD + 4 + n_servos + fast_sync_size(data_length, n_servos)
+
+
+def bulk_read_bytes(lengths: list[int]) -> int:
+    """Return the bytes on the wire of one BULK_READ (5 bytes a record) and every status."""
+    return INSTRUCTION_OVERHEAD + 5 * len(lengths) + sum(STATUS_OVERHEAD + n for n in lengths)
+
+
+def fast_bulk_read_bytes(lengths: list[int]) -> int:
+    """Return the bytes on the wire of one FAST_BULK_READ and its one status."""
+    return INSTRUCTION_OVERHEAD + 5 * len(lengths) + fast_status_size(lengths)
 
 
 def sync_write_bytes(n_servos: int, data_length: int) -> int:

@@ -7,13 +7,22 @@ at exit. The X series has the same in test_mixed_models.py.
 """
 
 import math
+import struct
 from typing import Any, Dict
 
+from dxl_servo_driver.config import validate
+from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.units import units_for
+from dxl_servo_driver.protocol import Instruction
+from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.port import SimPortHandler
+from dxl_servo_driver.sim.virtual_bus import configure_servos
+from dxl_servo_driver.transports import SimTransport
 from node_harness import NodeHarness, sim_params
 import pytest
+from test_manager import TapPort
 
 # joint name -> model number: one of each family (and both MX(2.0) tables: with and without
 # current sensing; the L42-10-S300-R beside the H54: its own units and modes).
@@ -149,3 +158,36 @@ def test_what_would_take_a_servo_off_the_bus_or_its_mode_is_refused(
     response = h.call('write_register', name=name, register_name=register, value=1)
     assert not response.success and reason in response.message, response.message
     assert h.reg(IDS[name], register) == before
+
+
+@pytest.mark.parametrize('read_mode, instruction', [('sync', Instruction.BULK_READ),
+                                                    ('fast_sync', Instruction.FAST_BULK_READ)])
+def test_a_bus_of_several_layouts_is_read_with_one_bulk_read(
+        read_mode: str, instruction: Instruction) -> None:
+    # An XM430 (block at 224, 12 bytes with the tick), an XL430 at firmware 45 and an X330 at
+    # firmware 52 (its block at 208): one request for all, each at its own address and length.
+    models = {1: model_for(1020), 2: model_for(1060), 3: model_for(1200, 52)}
+    sim = SimBus(list(models), boot_time_s=0.0, models=models, firmware={3: 52})
+    configure_servos(sim, 1_000_000, None)
+    tap = TapPort(SimPortHandler(sim, 'sim', 1_000_000))
+    joints = {f'j{i}': {'id': i, 'operating_mode': 'velocity'} for i in models}
+    manager = Manager(validate(sim_params(joints, read_mode=read_mode)), info=lambda _: None,
+                      warn=lambda _: None, port_factory=lambda _: SimTransport(sim, lambda: tap))
+    manager.configure()
+    manager.activate()
+    try:
+        tap.packets.clear()
+        assert manager.cycle_begin(full=False)
+        manager.cycle_end()
+        reads = [p for p in tap.packets if p.instruction in (
+            Instruction.SYNC_READ, Instruction.FAST_SYNC_READ, Instruction.BULK_READ,
+            Instruction.FAST_BULK_READ, Instruction.READ)]
+        assert [p.instruction for p in reads] == [instruction]
+        records = [struct.unpack_from('<BHH', reads[0].params, 5 * k) for k in range(3)]
+        assert records == [(1, 224, 12), (2, 224, 12), (3, 208, 12)]
+        assert all(servo.fresh for servo in manager.active_servos())
+        assert [each.what for each in manager.bus_budget().transactions][0] == (
+            'fast bulk read' if read_mode == 'fast_sync' else 'bulk read')
+    finally:
+        manager.deactivate()
+        manager.close()

@@ -2,7 +2,10 @@
 The cycle on the bus: one packed state read of every servo, one sync write per goal register.
 
 The read is a SYNC_READ or, with read_mode fast_sync (or auto, when every servo's firmware has
-it), a FAST_SYNC_READ: one status packet for all servos instead of one each. Servos on Protocol
+it), a FAST_SYNC_READ: one status packet for all servos instead of one each. Servos whose state
+blocks lie at different addresses or lengths (a mixed bus: an X with an XL-320 or a P) are read
+by one BULK_READ (FAST_BULK_READ likewise), each at its own, rather than one sync read each:
+one request, one wait for the adapter. Servos on Protocol
 1.0 (no sync read there) are read after it by one BULK_READ where every one of their models
 has it, else one READ each; a 1.0-only bus reads them first and does not pipeline. A sample
 without a Realtime Tick (the older tables) is tagged instead: its read starts up to
@@ -150,6 +153,7 @@ class Cycle:
         # The servos on Protocol 1.0, read after the sync reads; the tag of their next read.
         self._group_1: List[Servo] = []
         self._bulk_1 = False
+        self._bulk_2 = False
         self._tag = 0
         # Fast Sync Read: in use now; given up for good (read_mode auto) after fast reads in a
         # row that brought nothing back, counted here.
@@ -183,6 +187,8 @@ class Cycle:
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
         self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
+        # Several layouts: one bulk read of all of them, each at its own address and length.
+        self._bulk_2 = len(self._groups) > 1
         mode = self._ctx.config.read_mode
         self.fast = bool(self._groups) and (mode == 'fast_sync' or (
             mode == 'auto' and not self.fast_given_up
@@ -198,7 +204,15 @@ class Cycle:
         per servo in each protocol: what the bus-limit report and the diagnostics count.
         """
         plan: List[state_block.Transaction] = []
-        for block, ids in self._groups:
+        if self._bulk_2:
+            lengths = [_group_length(block, BLOCK.tagged_size, 0 if block.has_tick
+                                     else (READ_TAGS - 1) // 2)
+                       for block, ids in self._groups for _ in ids]
+            plan.append(state_block.Transaction(
+                'fast bulk read' if self.fast else 'bulk read',
+                (state_block.fast_bulk_read_bytes if self.fast else state_block.bulk_read_bytes)(
+                    lengths), 1 if self.fast else len(lengths)))
+        for block, ids in [] if self._bulk_2 else self._groups:
             length = _group_length(block, BLOCK.tagged_size, 0 if block.has_tick
                                    else (READ_TAGS - 1) // 2)
             if self.fast:
@@ -255,10 +269,15 @@ class Cycle:
         self._tag = (self._tag + 1) % READ_TAGS
         if not self._groups:
             return _Ended(self._read_1(length)), stamp, full, length
-        block, ids = self._groups[0]
-        pending = bus.begin_sync_read(block.read_address,
-                                      _group_length(block, length, self._tag), ids,
-                                      self.fast, self._linger_next)
+        if self._bulk_2:
+            records = [(servo_id, block.read_address, _group_length(block, length, self._tag))
+                       for block, ids in self._groups for servo_id in ids]
+            pending = bus.begin_bulk_read(records, self.fast, self._linger_next)
+        else:
+            block, ids = self._groups[0]
+            pending = bus.begin_sync_read(block.read_address,
+                                          _group_length(block, length, self._tag), ids,
+                                          self.fast, self._linger_next)
         self._linger_next = False
         return pending, stamp, full, length
 
@@ -319,7 +338,7 @@ class Cycle:
         """Complete a cycle's read: the other layouts, retries, samples taken (lock held)."""
         bus = self._link.io()
         received = time.monotonic()   # the bus dates requests on this clock
-        for block, ids in self._groups[1:]:
+        for block, ids in [] if self._bulk_2 else self._groups[1:]:
             # Models whose state block lives elsewhere (an X330 before firmware 53): one more
             # sync read each layout, dated on their own.
             more = bus.sync_read(block.read_address,
