@@ -358,6 +358,7 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             'cpu_per_cycle_us': round(cpu / cycles * 1e6, 1) if cycles else None,
             'bytes_per_cycle': round(per_cycle_bytes, 1),
             'cycles': cycles,
+            # Cycles that did not read every servo well (not counted in rate_hz).
             'failed_cycles': sum(run['failures'] for run in runs),
             'sim_late_p50_us': pacing.get('late_p50_us'),
             'sim_late_p99_us': pacing.get('late_p99_us'),
@@ -576,11 +577,18 @@ def targets(rows: List[Dict[str, Any]]) -> List[str]:
     return [f'{"met " if ok else "MISSED"}  {name}: {value}' for name, ok, value in checks]
 
 
+def _failed(row: Dict[str, Any]) -> str:
+    """Return a row's failed cycles ('-' for a node: it publishes only the samples it read)."""
+    if row['variant'] in ('node', 'node_fast'):
+        return '-'
+    return str(row['failed_cycles'])
+
+
 def table(rows: List[Dict[str, Any]]) -> str:
     """Format the results as a text table."""
     head = (f'{"baud":>8} {"N":>3} {"variant":<13} {"rate Hz":>8} {"limit Hz":>9} '
             f'{"ratio":>6} {"cpu/bus":>8} {"cpu us":>7} {"lat p50":>8} {"lat p99":>8} '
-            f'{"sim p99us":>9}')
+            f'{"sim p99us":>9} {"failed":>6}')
     lines = [head, '-' * len(head)]
     for row in rows:
         p50 = row.get('command_latency_p50_ms')
@@ -591,7 +599,7 @@ def table(rows: List[Dict[str, Any]]) -> str:
             f'{row["cpu_per_cycle_over_bus_time"]:>8.2f} {row["cpu_per_cycle_us"]:>7.0f} '
             f'{(f"{p50:.2f}" if p50 is not None else "-"):>8} '
             f'{(f"{p99:.2f}" if p99 is not None else "-"):>8} '
-            f'{row["sim_late_p99_us"] or 0:>9.0f}')
+            f'{row["sim_late_p99_us"] or 0:>9.0f} {_failed(row):>6}')
     return '\n'.join(lines)
 
 

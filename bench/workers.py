@@ -4,6 +4,9 @@ The two loops the benchmark compares with the node, each run in its own process.
 `python bench/workers.py sdk|bus N BAUD PORT SECONDS` prints one JSON line: cycles, wall seconds,
 CPU seconds (this process's own accounting), failed cycles. Both loops do what a control loop does:
 read position, velocity and current of every servo, then write a goal position to every servo.
+A cycle counts only when every servo's sample came back good (for the bus loop: and dated after
+its request); any other is a failed cycle, counted apart and not as a cycle, so a rate is never
+made of cycles that read nothing (or something old).
 """
 
 import json
@@ -31,15 +34,19 @@ def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
     wall0 = time.monotonic()
     cpu0 = time.process_time()
     while time.monotonic() - wall0 < seconds:
-        if reader.txRxPacket() != sdk.COMM_SUCCESS:
-            failures += 1
+        good = reader.txRxPacket() == sdk.COMM_SUCCESS
         for servo_id in ids:
             if reader.isAvailable(servo_id, 126, 10):
                 reader.getData(servo_id, 132, 4)
                 reader.getData(servo_id, 128, 4)
                 reader.getData(servo_id, 126, 2)
+            else:
+                good = False
         writer.txPacket()
-        cycles += 1
+        if good:
+            cycles += 1
+        else:
+            failures += 1
     wall = time.monotonic() - wall0
     cpu = time.process_time() - cpu0
     port.closePort()
@@ -75,17 +82,21 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
         result = bus.begin_sync_read(block.read_address, length, ids, fast, linger).collect()
         received = time.monotonic()
         linger = False
+        good = True
         for servo_id in ids:
             data = result.data[servo_id]
             if not isinstance(data, bytes):
-                failures += 1
+                good = False
                 continue
             values = decode(data)
             if not clocks[servo_id].check(values[tick], result.sent_s, received):
-                failures += 1
+                good = False
                 linger = True
         bus.sync_write(116, 4, goals)
-        cycles += 1
+        if good:
+            cycles += 1
+        else:
+            failures += 1
     wall = time.monotonic() - wall0
     cpu = time.process_time() - cpu0
     bus.close()
