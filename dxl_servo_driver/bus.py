@@ -223,7 +223,7 @@ class SyncRead:
         """Return what the read is called in the errors it reports."""
         return ('fast ' if self.fast else '') + ('bulk read' if self.bulk else 'sync read')
 
-    @property
+    @functools.cached_property
     def lengths(self) -> Tuple[int, ...]:
         """Return the data length of each id's answer, in the order asked."""
         lengths = self.request.lengths
@@ -246,11 +246,14 @@ class SyncRead:
         if self.done:
             raise RuntimeError('a sync read collected or aborted already')
         self.done = True
+        bus = self._bus
         try:
-            with self._bus.speaking(self.framer):   # the protocol it went out in
-                return self._bus._collect_sync(self)
+            if bus.framer is self.framer:   # the usual case: no switch on the cycle's path
+                return bus._collect_sync(self)
+            with bus.speaking(self.framer):   # the protocol it went out in
+                return bus._collect_sync(self)
         finally:
-            self._bus.lock.release()
+            bus.lock.release()
 
     def abort(self) -> None:
         """
@@ -765,21 +768,33 @@ class Bus:
         caller may do other work (publish the previous cycle) while the servos answer.
         """
         id_tuple = tuple(ids)
-        if any(self.framer_for(servo_id).version == 1 for servo_id in id_tuple):
+        # Only a bus where some id speaks 1.0 needs the look (not the usual one, every cycle).
+        if (self._framers or self.default_framer.version == 1) and any(
+                self.framer_for(servo_id).version == 1 for servo_id in id_tuple):
             raise BadRequest(f'{"fast sync read" if fast else "sync read"} does not exist in '
                              'Protocol 1.0 (use bulk_read)')
         self.lock.acquire()
         try:
-            with self.speaking(PROTOCOL_2):
-                request = Request(self._sync_read_packet(address, length, id_tuple, fast),
-                                  id_tuple, length)
-                expected = self._sync_reply_size(length, len(id_tuple), fast)
-                sent_s, written_s = self._send(request.packet)
+            if self.framer is PROTOCOL_2:   # the usual bus: no switch on the cycle's path
+                request, expected, sent_s, written_s = self._send_sync_read(
+                    address, length, id_tuple, fast)
+            else:
+                with self.speaking(PROTOCOL_2):
+                    request, expected, sent_s, written_s = self._send_sync_read(
+                        address, length, id_tuple, fast)
         except BaseException:
             self.lock.release()
             raise
         deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(request.packet))
         return SyncRead(self, request, length, address, sent_s, deadline, fast, linger)
+
+    def _send_sync_read(self, address: int, length: int, ids: Tuple[int, ...],
+                        fast: bool) -> Tuple[Request, int, float, float]:
+        """Put a sync read on the wire: (request, bytes expected, sent_s, written_s)."""
+        request = Request(self._sync_read_packet(address, length, ids, fast), ids, length)
+        expected = self._sync_reply_size(length, len(ids), fast)
+        sent_s, written_s = self._send(request.packet)
+        return request, expected, sent_s, written_s
 
     def _sync_reply_size(self, length: int, count: int, fast: bool) -> int:
         """Return the bytes the answers to a sync read of length bytes from count servos take."""

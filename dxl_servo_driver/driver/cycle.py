@@ -45,6 +45,8 @@ _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every mo
 # A cycle's goal per servo as the bus limit counts it: a position (4 bytes; 2 on the Protocol
 # 1.0 tables, whose goals are 2 bytes).
 GOAL_BYTES = 4
+# The tag a tickless block's read carries on average (the bus limit counts it).
+_MEAN_TAG = (READ_TAGS - 1) // 2
 GOAL_BYTES_1 = 2
 SyncWrite = Tuple[float, int, int, List[Tuple[int, bytes]]]   # protocol, address, length, data
 
@@ -205,16 +207,14 @@ class Cycle:
         """
         plan: List[state_block.Transaction] = []
         if self._bulk_2:
-            lengths = [_group_length(block, BLOCK.tagged_size, 0 if block.has_tick
-                                     else (READ_TAGS - 1) // 2)
+            lengths = [_group_length(block, BLOCK.tagged_size, _MEAN_TAG)
                        for block, ids in self._groups for _ in ids]
             plan.append(state_block.Transaction(
                 'fast bulk read' if self.fast else 'bulk read',
                 (state_block.fast_bulk_read_bytes if self.fast else state_block.bulk_read_bytes)(
                     lengths), 1 if self.fast else len(lengths)))
         for block, ids in [] if self._bulk_2 else self._groups:
-            length = _group_length(block, BLOCK.tagged_size, 0 if block.has_tick
-                                   else (READ_TAGS - 1) // 2)
+            length = _group_length(block, BLOCK.tagged_size, _MEAN_TAG)
             if self.fast:
                 plan.append(state_block.Transaction(
                     'fast sync read', state_block.fast_sync_read_bytes(len(ids), length), 1))
@@ -222,8 +222,7 @@ class Cycle:
                 plan.append(state_block.Transaction(
                     'sync read', state_block.sync_read_bytes(len(ids), length), len(ids)))
         lengths = [_group_length(servo.block, BLOCK.tagged_size)
-                   + (0 if servo.block.has_tick else (READ_TAGS - 1) // 2)
-                   for servo in self._group_1]
+                   + (0 if servo.block.has_tick else _MEAN_TAG) for servo in self._group_1]
         if lengths and self._bulk_1:
             plan.append(state_block.Transaction(
                 'bulk read (Protocol 1.0)', state_block.bulk_read_bytes_1(lengths), len(lengths)))
@@ -305,10 +304,8 @@ class Cycle:
             sent_s = time.monotonic()
             for servo_id, address, size in records:
                 try:
-                    # Read on to the deadline when the bus is suspicious: no tick to tell.
                     data[servo_id], asked_s = bus.read_dated(
-                        servo_id, address, size, False if cut[servo_id][0] == 0 and
-                        self._roster.by_id[servo_id].block.has_tick else None)
+                        servo_id, address, size, _linger(self._roster.by_id[servo_id].block))
                     dated[servo_id] = (asked_s, time.monotonic())
                 except CommError as exc:
                     data[servo_id] = exc
@@ -341,23 +338,12 @@ class Cycle:
         for block, ids in [] if self._bulk_2 else self._groups[1:]:
             # Models whose state block lives elsewhere (an X330 before firmware 53): one more
             # sync read each layout, dated on their own.
-            more = bus.sync_read(block.read_address,
-                                 _group_length(block, reading.length, self._tag), ids,
-                                 reading.pending.fast)
-            got = time.monotonic()
-            result.data.update(more.data)
-            result.alerts.update(more.alerts)
-            result.dated.update({sid: (more.sent_s, got) for sid in ids})
-            result.dated.update(more.dated)
-            result.clean = result.clean and more.clean
+            _merge(result, ids, bus.sync_read(
+                block.read_address, _group_length(block, reading.length, self._tag), ids,
+                reading.pending.fast))
         if self._groups and self._group_1:
-            more = self._read_1(reading.length)
-            got = time.monotonic()
-            result.data.update(more.data)
-            result.alerts.update(more.alerts)
-            result.dated.update({servo.servo_id: (more.sent_s, got) for servo in self._group_1})
-            result.dated.update(more.dated)
-            result.clean = result.clean and more.clean
+            _merge(result, [servo.servo_id for servo in self._group_1],
+                   self._read_1(reading.length))
         fast_parts = -1
         if reading.pending.fast:
             fast_parts = sum(isinstance(data, bytes) for data in result.data.values())
@@ -521,7 +507,7 @@ class Cycle:
                     block = self._roster.by_id[servo_id].block
                     answer, sent_s = bus.read_dated(
                         servo_id, block.read_address, _group_length(block, length),
-                        None if not block.has_tick else False)
+                        _linger(block))
                 except CommError as exc:
                     result.data[servo_id] = exc
                     continue
@@ -601,6 +587,26 @@ class Cycle:
             writes[key].append((servo.servo_id, slot.pack(servo.goal_raw, lengths[key])))
         return [(protocol, address, lengths[protocol, address], data)
                 for (protocol, address), data in writes.items()]
+
+
+def _merge(result: SyncResult, ids: List[int], more: SyncResult) -> None:
+    """Add a later read's answers to the cycle's, each dated by that read (sent, received)."""
+    got = time.monotonic()
+    result.data.update(more.data)
+    result.alerts.update(more.alerts)
+    result.dated.update({servo_id: (more.sent_s, got) for servo_id in ids})
+    result.dated.update(more.dated)
+    result.clean = result.clean and more.clean
+
+
+def _linger(block: state_block.StateBlock) -> Optional[bool]:
+    """
+    Return read_dated's linger for a block: a ticked one never reads on (its tick dates it).
+
+    One without a tick reads on to the deadline when the bus is suspicious (None): nothing else
+    tells its answer from a late one.
+    """
+    return False if block.has_tick else None
 
 
 def _group_length(block: state_block.StateBlock, length: int, tag: int = 0) -> int:

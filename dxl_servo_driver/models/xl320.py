@@ -18,7 +18,7 @@ driver asks for onto them:
   Goal Position in joint mode, as the X's limits do in position mode)
 
 Left out: pwm_limit -> max_torque. The X's PWM Limit bounds a Goal PWM the XL-320 lacks; Max
-Torque (0..1,023 of 0.1 % of the maximum torque) only seeds Torque Limit at power-on, the
+Torque (0..1,023 of 0.1 % of the maximum torque) only sets Torque Limit at power-on, the
 nearest notion but not the same register role. pwm_full_raw is 1,023 on that torque-limit scale
 since the servo has no PWM register at all. acceleration_unit_rpm2 stays the default: there is no
 profile acceleration. homing_offset, current_limit, velocity_limit: no such registers.
