@@ -45,6 +45,7 @@ import collections
 import contextlib
 from dataclasses import dataclass, field
 import functools
+import operator
 import struct
 import threading
 import time
@@ -57,8 +58,9 @@ from dxl_servo_driver.errors import (
 from dxl_servo_driver.models import Item
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, crc16, ERROR_CODE_MASK, ErrorCode,
-    fast_status_head, fast_status_size, fast_sync_size, Frame, Framer, HEADER, Instruction,
-    MAX_ID, parse_fast_status, PROTOCOL_2)
+    FAST_HEAD_SIZE, FAST_PART_OVERHEAD, fast_status_head, fast_status_size, fast_sync_head,
+    fast_sync_size, Frame, Framer, HEADER, Instruction, MAX_ID, parse_fast_status, PROTOCOL_2,
+    STATUS_OVERHEAD)
 from dxl_servo_driver.protocol1 import (
     error_text as error_text_1, Instruction1, MAX_ADDRESS as MAX_ADDRESS_1,
     MAX_PARAMS as MAX_PARAMS_1, PROTOCOL_1)
@@ -111,6 +113,92 @@ class Counters:
     deadline_waits: int = 0    # reads that ended at their deadline short of what they asked
 
 
+def _many(positions: Sequence[Any]) -> Callable[[Any], Tuple[Any, ...]]:
+    """Return a getter of these positions that always returns a tuple (itemgetter of one not)."""
+    getter = operator.itemgetter(*positions)
+    if len(positions) == 1:
+        return lambda sequence: (getter(sequence),)
+    return cast(Callable[[Any], Tuple[Any, ...]], getter)
+
+
+class BlockTemplate:
+    """
+    The usual reply block of one (fast) sync read, checked and decoded whole.
+
+    For one request (ids, data length, fast or not) and the struct codes of each servo's data
+    (`fields`), one struct unpacks the whole block: every servo's header, id, length and error
+    byte (the fast status: its head and each part's error and id) are compared with what a clean
+    block has in one comparison, the CRCs are the compiled CRC's over every reply, and the
+    values of every servo come out as one flat tuple, in the order asked. What the careful path
+    (`Bus._parse_clean`, `parse_fast_status`) takes as a whole clean block with every error
+    byte 0 is exactly what this takes, with the same values; anything else (a missing, late,
+    corrupt, stuffed reply, an alert) is left to it.
+    """
+
+    def __init__(self, ids: Tuple[int, ...], length: int, fields: str, fast: bool) -> None:
+        per_servo = struct.calcsize('<' + fields)
+        if per_servo != length:
+            raise ValueError(f'fields {fields!r} take {per_servo} bytes, the read {length}')
+        count = len(fields.replace('x', ''))   # codes: one value each (no counts, no pads)
+        self.ids = ids
+        self.fields_per_servo = count
+        self.fast = fast
+        overhead = FAST_PART_OVERHEAD if fast else STATUS_OVERHEAD
+        head = FAST_HEAD_SIZE if fast else 0
+        if fast:
+            self.struct = struct.Struct('<8s' + ('BB' + fields + 'H') * len(ids))
+            self._head = fast_sync_head(length, len(ids))
+            stride = count + 3   # error, id, fields, crc
+            first = 1
+            self._marks = _many([first + k * stride + j for k in range(len(ids)) for j in (0, 1)])
+            self._expected: Tuple[Any, ...] = tuple(
+                value for servo_id in ids for value in (0, servo_id))
+        else:
+            self.struct = struct.Struct('<' + ('9s' + fields + 'H') * len(ids))
+            stride = count + 2   # prefix, fields, crc
+            first = 0
+            self._marks = _many([k * stride for k in range(len(ids))])
+            self._expected = tuple(
+                HEADER + struct.pack('<BHBB', servo_id, length + 4, Instruction.STATUS, 0)
+                for servo_id in ids)
+        self.size = self.struct.size
+        self._crcs = _many([first + k * stride + stride - 1 for k in range(len(ids))])
+        self._values = _many([first + k * stride + (stride - count - 1) + j
+                              for k in range(len(ids)) for j in range(count)])
+        # What each CRC covers: a reply's bytes but its CRC; a fast part's, from the end of the
+        # part before (its CRC bytes included), continuing that CRC.
+        ends = [head + (k + 1) * (overhead + length) - 2 for k in range(len(ids))]
+        if fast:
+            starts = [0] + ends[:-1]
+        else:
+            starts = [end - (overhead + length - 2) for end in ends]
+        self._covered = _many([slice(start, end) for start, end in zip(starts, ends)])
+        self._data = [slice(end - length, end) for end in ends]
+
+    def parse(self, buffer: bytes) -> Optional[Tuple[int, ...]]:
+        """Return every servo's values, in order, when buffer is the clean block; else None."""
+        if len(buffer) != self.size:
+            return None
+        values = self.struct.unpack(buffer)
+        if self._marks(values) != self._expected:
+            return None
+        if self.fast:
+            if values[0] != self._head:
+                return None
+            crc = 0
+            for covered, expected in zip(self._covered(buffer), self._crcs(values)):
+                crc = crc16(covered, crc)
+                if crc != expected:
+                    return None
+        elif tuple(map(crc16, self._covered(buffer))) != self._crcs(values):
+            return None
+        return self._values(values)
+
+    def data(self, buffer: bytes, index: int) -> bytes:
+        """Return the data bytes of the index-th servo asked in a block parse() took."""
+        return buffer[self._data[index]]
+
+
 @dataclass
 class SyncResult:
     """
@@ -120,6 +208,10 @@ class SyncResult:
     is True when the reply block was exactly what was expected (every reply there, in order,
     nothing else), so callers may skip their own checks. sent_s is when the request went out
     (monotonic): a sample cannot be older than that. alerts holds each reply's alert bit.
+
+    A read given its fields (begin_sync_read) whose block was the usual clean one has instead
+    `values`, every servo's decoded at once (BlockTemplate), and data empty: `block` and
+    `template` give a servo's bytes when wanted.
     """
 
     data: Dict[int, Union[bytes, CommError]]
@@ -128,6 +220,9 @@ class SyncResult:
     alerts: Dict[int, bool] = field(default_factory=dict)
     # (sent, received) of the ids whose data came from a later one-off read (a retry)
     dated: Dict[int, Tuple[float, float]] = field(default_factory=dict)
+    values: Optional[Tuple[int, ...]] = None
+    block: bytes = b''
+    template: Optional[BlockTemplate] = None
 
 
 @dataclass
@@ -217,6 +312,7 @@ class SyncRead:
     done: bool = False
     bulk: bool = False            # a bulk read: each id its own length (request.lengths)
     framer: Framer = PROTOCOL_2   # the protocol it went out in (a bulk read may be 1.0's)
+    fields: str = ''              # struct codes of each answer's data: decoded whole when clean
 
     @property
     def what(self) -> str:
@@ -317,8 +413,9 @@ class Bus:
         self.echo = False             # learned: the adapter echoes what we send
         self._echo_misses = 0
         self._dirty_until = 0.0
-        self._sync_read_packets: Dict[Tuple[int, int, Tuple[int, ...], bool], bytes] = {}
+        self._sync_read_requests: Dict[Tuple[int, int, Tuple[int, ...], bool], Request] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], Tuple[int, ...]], List[bytes]] = {}
+        self._templates: Dict[Tuple[bytes, str], BlockTemplate] = {}
         self._read_tag = 0
         self._recent: Deque[bytes] = collections.deque(maxlen=RECENT_PACKETS)
 
@@ -730,19 +827,20 @@ class Bus:
         self.transact(servo_id, Instruction.FACTORY_RESET, bytes((option,)), 0, 'factory reset')
 
     # per-cycle transactions ----------------------------------------------------------------
-    def _sync_read_packet(self, address: int, length: int, ids: Tuple[int, ...],
-                          fast: bool) -> bytes:
+    def _sync_read_request(self, address: int, length: int, ids: Tuple[int, ...],
+                           fast: bool) -> Request:
+        """Return the Request of a sync read, made once per roster and part (not per cycle)."""
         key = (address, length, ids, fast)
-        packet = self._sync_read_packets.get(key)
-        if packet is None:
+        request = self._sync_read_requests.get(key)
+        if request is None:
             params = struct.pack('<HH', address, length) + bytes(ids)
             packet = self.framer.encode(
                 BROADCAST_ID, Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ,
                 params)
-            if len(self._sync_read_packets) > 64:
-                self._sync_read_packets.clear()
-            self._sync_read_packets[key] = packet
-        return packet
+            if len(self._sync_read_requests) > 64:
+                self._sync_read_requests.clear()
+            request = self._sync_read_requests[key] = Request(packet, ids, length)
+        return request
 
     def sync_read(self, address: int, length: int, ids: Sequence[int],
                   fast: bool = False) -> SyncResult:
@@ -756,7 +854,7 @@ class Bus:
         return self.begin_sync_read(address, length, ids, fast).collect()
 
     def begin_sync_read(self, address: int, length: int, ids: Sequence[int],
-                        fast: bool = False, linger: bool = False) -> SyncRead:
+                        fast: bool = False, linger: bool = False, fields: str = '') -> SyncRead:
         """
         Send a SYNC_READ (FAST_SYNC_READ when fast) and return at once, the bus held.
 
@@ -766,6 +864,10 @@ class Bus:
         the caller found the last answer stale (a late one taken in its place, the next one
         then still on its way), and this puts request and answer back in step. Meanwhile the
         caller may do other work (publish the previous cycle) while the servos answer.
+
+        fields: the struct codes of each servo's data (the state block's). When given, the
+        usual clean block is checked and decoded whole (BlockTemplate): the result has `values`
+        instead of `data`; any other block is collected the careful way, as without.
         """
         id_tuple = tuple(ids)
         # Only a bus where some id speaks 1.0 needs the look (not the usual one, every cycle).
@@ -786,12 +888,13 @@ class Bus:
             self.lock.release()
             raise
         deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(request.packet))
-        return SyncRead(self, request, length, address, sent_s, deadline, fast, linger)
+        return SyncRead(self, request, length, address, sent_s, deadline, fast, linger,
+                        fields=fields)
 
     def _send_sync_read(self, address: int, length: int, ids: Tuple[int, ...],
                         fast: bool) -> Tuple[Request, int, float, float]:
         """Put a sync read on the wire: (request, bytes expected, sent_s, written_s)."""
-        request = Request(self._sync_read_packet(address, length, ids, fast), ids, length)
+        request = self._sync_read_request(address, length, ids, fast)
         expected = self._sync_reply_size(length, len(ids), fast)
         sent_s, written_s = self._send(request.packet)
         return request, expected, sent_s, written_s
@@ -819,6 +922,12 @@ class Bus:
         if echo_size and buffer[:echo_size] == pending.packet:
             buffer = buffer[echo_size:]
             self._echo_seen()
+        if pending.fields and not pending.linger and self.framer.version == 2:
+            template = self._template(pending)
+            values = template.parse(buffer)
+            if values is not None:
+                return SyncResult({}, True, pending.sent_s, values=values, block=buffer,
+                                  template=template)
         if pending.fast:
             result = self._collect_fast(pending, buffer)
         else:
@@ -836,6 +945,17 @@ class Bus:
                 and any(isinstance(data, bytes) for data in result.data.values())):
             self._echo_missing()
         return result
+
+    def _template(self, pending: SyncRead) -> BlockTemplate:
+        """Return the BlockTemplate of a sync read (made once per request)."""
+        key = (pending.packet, pending.fields)   # the packet says ids, length, fast
+        template = self._templates.get(key)
+        if template is None:
+            template = BlockTemplate(pending.ids, pending.length, pending.fields, pending.fast)
+            if len(self._templates) > 64:
+                self._templates.clear()
+            self._templates[key] = template
+        return template
 
     def _parse_clean(self, buffer: bytes, ids: Tuple[int, ...],
                      lengths: Tuple[int, ...]) -> Optional[Dict[int, Union[bytes, CommError]]]:

@@ -9,12 +9,6 @@ from typing import Optional
 from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
 
 
-def _wrap_ms(value: float) -> float:
-    """Return value folded into [-TICK_PERIOD_MS / 2, TICK_PERIOD_MS / 2)."""
-    half = TICK_PERIOD_MS / 2
-    return (value + half) % TICK_PERIOD_MS - half
-
-
 class TickClock:
     """
     Date a servo's samples by its Realtime Tick and refuse those older than their request.
@@ -50,21 +44,25 @@ class TickClock:
 
     def check(self, tick: int, sent_s: float, received_s: float) -> bool:
         """Return False when the sample was taken before sent_s; learn from it otherwise."""
-        sent_ms = sent_s * 1000.0
+        # Run for every servo every cycle: each difference is folded into [-P/2, P/2) in place,
+        # (x + P/2) % P - P/2, rather than by a call.
+        period = TICK_PERIOD_MS
+        half = period / 2
         received_ms = received_s * 1000.0
         bound = self._bound_ms
         if bound is None or received_ms - self._bound_at_ms > self.forget_after_ms:
-            self._bound_ms = _wrap_ms(tick - received_ms)
+            self._bound_ms = (tick - received_ms + half) % period - half
             self._bound_at_ms = received_ms
             return True
-        bound -= self.drift * max(0.0, received_ms - self._bound_at_ms)
-        age_ms = _wrap_ms(bound - (tick - sent_ms))
-        if age_ms > self.tolerance_ms:
+        elapsed = received_ms - self._bound_at_ms
+        if elapsed > 0.0:
+            bound -= self.drift * elapsed
+        if (bound - (tick - sent_s * 1000.0) + half) % period - half > self.tolerance_ms:
             self.refused += 1
             return False
-        rise = _wrap_ms((tick - received_ms) - bound)
+        rise = (tick - received_ms - bound + half) % period - half
         if rise > 0.0:
             bound += rise
-        self._bound_ms = _wrap_ms(bound)
+        self._bound_ms = (bound + half) % period - half
         self._bound_at_ms = received_ms
         return True

@@ -42,6 +42,7 @@ SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
 _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
+_TAGGED_FIELDS = _TAGGED.format.lstrip('<')   # each servo's data in a whole-block decode
 # A cycle's goal per servo as the bus limit counts it: a position (4 bytes; 2 on the Protocol
 # 1.0 tables, whose goals are 2 bytes).
 GOAL_BYTES = 4
@@ -149,6 +150,7 @@ class Cycle:
         # Servos whose block is the X layout, read through indirect entries and tick-dated:
         # the usual cycle decodes them with one struct, the rest go the careful way.
         self._shaped: frozenset[int] = frozenset()
+        self._block_servos: List[Servo] = []
         self._reading: Optional[ReadInFlight] = None
         # The sync reads: (block, ids) per state-block layout; one on most buses.
         self._groups: List[Tuple[state_block.StateBlock, List[int]]] = []
@@ -191,6 +193,12 @@ class Cycle:
         self._groups = sorted(groups.values(), key=lambda group: -len(group[1]))
         # Several layouts: one bulk read of all of them, each at its own address and length.
         self._bulk_2 = len(self._groups) > 1
+        # One sync read of X-layout servos and nothing else: its usual clean block is decoded
+        # whole by the bus (BlockTemplate), these servos in the order asked.
+        self._block_servos = []
+        if len(self._groups) == 1 and not self._group_1 and all(
+                servo_id in self._shaped for servo_id in self._groups[0][1]):
+            self._block_servos = [self._roster.by_id[servo_id] for servo_id in self._groups[0][1]]
         mode = self._ctx.config.read_mode
         self.fast = bool(self._groups) and (mode == 'fast_sync' or (
             mode == 'auto' and not self.fast_given_up
@@ -274,9 +282,11 @@ class Cycle:
             pending = bus.begin_bulk_read(records, self.fast, self._linger_next)
         else:
             block, ids = self._groups[0]
+            whole = self._block_servos and length == BLOCK.tagged_size
             pending = bus.begin_sync_read(block.read_address,
                                           _group_length(block, length, self._tag), ids,
-                                          self.fast, self._linger_next)
+                                          self.fast, self._linger_next,
+                                          _TAGGED_FIELDS if whole else '')
         self._linger_next = False
         return pending, stamp, full, length
 
@@ -333,8 +343,17 @@ class Cycle:
     def _taken(self, reading: ReadInFlight, result: SyncResult,
                retry_until: Optional[float]) -> float:
         """Complete a cycle's read: the other layouts, retries, samples taken (lock held)."""
-        bus = self._link.io()
         received = time.monotonic()   # the bus dates requests on this clock
+        if result.values is not None:
+            # The usual cycle: one clean block, every servo decoded at once by the bus.
+            self._fast_empty = 0
+            self._need_full = False
+            refused = self._stale.refused
+            self._take_block(result, reading.stamp, received)
+            self._linger_next = self._stale.refused > refused
+            self.cycles += 1
+            return reading.stamp
+        bus = self._link.io()
         for block, ids in [] if self._bulk_2 else self._groups[1:]:
             # Models whose state block lives elsewhere (an X330 before firmware 53): one more
             # sync read each layout, dated on their own.
@@ -382,6 +401,35 @@ class Cycle:
                 'nothing back while the servos answered on their own; sync reads from now on '
                 '(until the next configure)')
 
+    def _take_block(self, result: SyncResult, stamp: float, received: float) -> None:
+        """
+        Take a block the bus decoded whole: each servo's motion and tick, dated, in order.
+
+        What _take_results does for a well servo's usual sample, without a look-up, a decode or
+        a length check per servo (the bus checked the block); a servo whose sample needs more
+        (no state yet, a motion part of all zeros) goes the careful way with its bytes.
+        """
+        values = result.values
+        assert values is not None and result.template is not None
+        refuse = self._stale.refuse
+        sent_s = result.sent_s
+        fields = BLOCK.TAGGED_FIELDS
+        start = 0
+        for index, servo in enumerate(self._block_servos):
+            sample = values[start:start + fields]
+            start += fields
+            state = servo.state
+            if state is None or not (sample[0] or sample[1] or sample[2]):
+                self._take_one(servo, servo.servo_id, result.template.data(result.block, index),
+                               result, stamp, received)
+                continue
+            if servo.tick.check(sample[IDX_TICK], sent_s, received):
+                servo.state = sample + state[fields:]
+                servo.fresh = True
+                servo.consecutive_failures = 0
+            else:
+                refuse(servo)
+
     def _take_results(self, result: SyncResult, stamp: float, received: float) -> None:
         get = result.data.get
         alerts = result.alerts
@@ -398,7 +446,7 @@ class Cycle:
                     and servo_id in shaped:
                 # The usual cycle: motion and tick of a servo known to be well, dated.
                 values = unpack_tagged(data)
-                if values[0] or values[1] or values[2]:   # all zeros: see below
+                if values[0] or values[1] or values[2]:   # all zeros: see _take_one
                     when = dated.get(servo_id)
                     if when is None:
                         fresh = check(servo, values[IDX_TICK], sent_s, received)
@@ -415,45 +463,52 @@ class Cycle:
             if not isinstance(data, bytes):
                 self._read_failed(servo, data)
                 continue
-            size = len(data)   # a retry may have read more than the sync read
-            block = servo.block
-            values = block.decoder(size)(data)
-            full = size == block.size
-            if not values[0] and not values[1] and not values[2] and not full \
-                    and block.has_canary:
-                # What a restarted servo returns (its indirect map is gone) - or a horn at
-                # exactly -pi, at rest: ask for the whole block, canary included, to know.
-                checked = self._check_restart(servo)
-                if checked is None:
-                    continue
-                values = checked
-                full = True
-            elif full and (block.restarted(values) or (
-                    not block.has_canary and servo.torque_wanted and servo.state is not None
-                    and not values[IDX_TORQUE] and not values[IDX_HW_ERROR]
-                    and not alerts.get(servo_id))):
-                # No canary (a map that survives a reboot, or none): a servo whose torque went
-                # off with no error to say why lost its power (or was rebooted by another).
-                servo.fresh = False
-                self.restarted.append(servo)
-                continue
-            else:
-                when = dated.get(servo_id, (sent_s, received))
-                if block.has_tick and not check(servo, values[IDX_TICK], when[0], when[1]):
-                    continue
-            if full:
-                servo.state = values
-                servo.health_time = stamp
-            elif servo.state is not None:
-                servo.state = values[:BLOCK.TAGGED_FIELDS] + servo.state[BLOCK.TAGGED_FIELDS:]
-            else:
-                # Motion is good; the health part is not known yet (health_time 0).
-                servo.state = values[:BLOCK.TAGGED_FIELDS] + _NO_HEALTH
-                self._need_full = True
-            if result.alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:  # type: ignore
-                self._need_full = True   # a new hardware error: decode it next cycle
-            servo.fresh = True
-            servo.consecutive_failures = 0
+            self._take_one(servo, servo_id, data, result, stamp, received)
+
+    def _take_one(self, servo: Servo, servo_id: int, data: bytes, result: SyncResult,
+                  stamp: float, received: float) -> None:
+        """Take one servo's sample the careful way: any part, any layout, restart checks."""
+        check = self._stale.check
+        alerts = result.alerts
+        size = len(data)   # a retry may have read more than the sync read
+        block = servo.block
+        values = block.decoder(size)(data)
+        full = size == block.size
+        if not values[0] and not values[1] and not values[2] and not full \
+                and block.has_canary:
+            # What a restarted servo returns (its indirect map is gone) - or a horn at
+            # exactly -pi, at rest: ask for the whole block, canary included, to know.
+            checked = self._check_restart(servo)
+            if checked is None:
+                return
+            values = checked
+            full = True
+        elif full and (block.restarted(values) or (
+                not block.has_canary and servo.torque_wanted and servo.state is not None
+                and not values[IDX_TORQUE] and not values[IDX_HW_ERROR]
+                and not alerts.get(servo_id))):
+            # No canary (a map that survives a reboot, or none): a servo whose torque went
+            # off with no error to say why lost its power (or was rebooted by another).
+            servo.fresh = False
+            self.restarted.append(servo)
+            return
+        else:
+            when = result.dated.get(servo_id, (result.sent_s, received))
+            if block.has_tick and not check(servo, values[IDX_TICK], when[0], when[1]):
+                return
+        if full:
+            servo.state = values
+            servo.health_time = stamp
+        elif servo.state is not None:
+            servo.state = values[:BLOCK.TAGGED_FIELDS] + servo.state[BLOCK.TAGGED_FIELDS:]
+        else:
+            # Motion is good; the health part is not known yet (health_time 0).
+            servo.state = values[:BLOCK.TAGGED_FIELDS] + _NO_HEALTH
+            self._need_full = True
+        if alerts.get(servo_id) and not servo.state[IDX_HW_ERROR]:  # type: ignore
+            self._need_full = True   # a new hardware error: decode it next cycle
+        servo.fresh = True
+        servo.consecutive_failures = 0
 
     def _read_failed(self, servo: Servo, error: Any) -> None:
         servo.fresh = False

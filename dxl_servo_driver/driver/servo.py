@@ -228,13 +228,17 @@ class StaleGuard:
         """Return True when the sample's Realtime Tick dates it after its request."""
         if servo.tick.check(tick, sent_s, received_s):
             return True
+        self.refuse(servo)
+        return False
+
+    def refuse(self, servo: Servo) -> None:
+        """Count and say a sample its TickClock refused (it answers an earlier request)."""
         servo.fresh = False
         servo.stale_refused += 1
         self.refused += 1
         self._warn_throttled(f'stale:{servo.name}',
                              f'joint {servo.name!r}: refused a reply older than its request '
                              '(a late reply of an earlier one); nothing published for it')
-        return False
 
 
 def clamp_position(servo: Servo, raw: int) -> int:

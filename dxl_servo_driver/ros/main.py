@@ -12,6 +12,7 @@ from typing import Any, List, Optional
 
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver.errors import Interrupted
+from dxl_servo_driver.manager import open_transport, PortFactory
 from dxl_servo_driver.ros.node import DriverNode, NODE_NAME, StartupFailure
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -60,8 +61,12 @@ def _params_files(argv: List[str]) -> List[str]:
     return files
 
 
-def main(args: Optional[List[str]] = None) -> int:
-    """Run the driver node until Ctrl-C or SIGTERM; non-zero exit when it cannot start."""
+def main(args: Optional[List[str]] = None, port_factory: PortFactory = open_transport) -> int:
+    """
+    Run the driver node until Ctrl-C or SIGTERM; non-zero exit when it cannot start.
+
+    port_factory: what opens the port (the benchmark's recorded-reply port; default by `port`).
+    """
     logger = rclpy.logging.get_logger(NODE_NAME)
     argv = list(sys.argv if args is None else args)
     signals = _Signals()
@@ -86,7 +91,7 @@ def main(args: Optional[List[str]] = None) -> int:
     code = 0
     try:
         try:
-            node = DriverNode()
+            node = DriverNode(port_factory)
         except (ValueError, TypeError, _rclpy.RCLError) as exc:
             # A parameter ROS itself refuses (an empty list on the command line, ...).
             raise StartupFailure(f'invalid configuration: {exc}') from None
