@@ -100,6 +100,8 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
             if not clocks[servo_id].check(values[tick], result.sent_s, received):
                 good = False
                 linger = True
+        if linger:
+            bus.raise_slack()   # as the node's cycle: a late reply, more slack
         bus.sync_write(116, 4, goals)
         if good:
             cycles += 1

@@ -68,8 +68,16 @@ from dxl_servo_driver.serial_port import RawPort
 
 # The framer of each protocol version, as configurations name them.
 FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}
-# Slack added to every computed deadline: OS scheduling and USB transfer jitter.
+# Slack added to every computed deadline: OS scheduling and USB transfer jitter. It starts at
+# DEADLINE_SLACK_S and doubles, up to MAX_DEADLINE_SLACK_S, whenever a reply shows it came after
+# its deadline, late rather than lost (a busy machine, an adapter's jitter): the bytes a read gave
+# up on wait before the next request, or the caller finds a reply dated before its request
+# (Bus.raise_slack); SLACK_DECAY_REQUESTS requests in a row with no read given up on halve it
+# again, down to DEADLINE_SLACK_S. A servo that does not answer never raises it (nothing comes
+# late), so a silent servo costs each cycle the small slack, not the large one.
 DEADLINE_SLACK_S = 0.002
+MAX_DEADLINE_SLACK_S = 0.016
+SLACK_DECAY_REQUESTS = 5000
 # One-off reads differ in length over this many consecutive requests (see Bus.read).
 READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
@@ -111,6 +119,7 @@ class Counters:
     echoes: int = 0            # our own requests seen coming back (local echo)
     flushed_bytes: int = 0     # bytes waiting before a request (late replies, noise)
     deadline_waits: int = 0    # reads that ended at their deadline short of what they asked
+    slack_raised: int = 0      # times the deadline slack was doubled (replies came late)
 
 
 def _many(positions: Sequence[Any]) -> Callable[[Any], Tuple[Any, ...]]:
@@ -413,6 +422,9 @@ class Bus:
         self.echo = False             # learned: the adapter echoes what we send
         self._echo_misses = 0
         self._dirty_until = 0.0
+        self.slack_s = DEADLINE_SLACK_S   # the deadline slack in force (see DEADLINE_SLACK_S)
+        self._gave_up = False             # a read since the last request ended short
+        self._easy_requests = 0
         self._sync_read_requests: Dict[Tuple[int, int, Tuple[int, ...], bool], Request] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], Tuple[int, ...]], List[bytes]] = {}
         self._templates: Dict[Tuple[bytes, str], BlockTemplate] = {}
@@ -451,7 +463,19 @@ class Bus:
     def reply_timeout_s(self, reply_bytes: int, n_replies: int = 1, tx_bytes: int = 0) -> float:
         """Return how long to wait for replies, from the moment the instruction was written."""
         return (self.byte_time_s(tx_bytes + reply_bytes) + n_replies * self.return_delay_s
-                + self.latency_timer_s + DEADLINE_SLACK_S)
+                + self.latency_timer_s + self.slack_s)
+
+    def raise_slack(self) -> None:
+        """
+        Double the deadline slack (to its cap): a reply came after its deadline.
+
+        The bus sees it when the bytes a read gave up on wait before the next request; the
+        caller when a reply it took is dated before its request (a late one taken in the place
+        of its own: the cycle's tick dating).
+        """
+        self.slack_s = min(MAX_DEADLINE_SLACK_S, 2.0 * self.slack_s)
+        self.counters.slack_raised += 1
+        self._easy_requests = 0
 
     def set_baud(self, baud_bps: int) -> None:
         """Change the line speed of the port and of the deadlines."""
@@ -485,6 +509,15 @@ class Bus:
             port.reset_input_buffer()
             self.counters.flushed_bytes += waiting
             self.mark_dirty()
+            if self._gave_up:
+                # What the last read gave up on came after all: the deadline was too tight.
+                self.raise_slack()
+        elif not self._gave_up and self.slack_s > DEADLINE_SLACK_S:
+            self._easy_requests += 1
+            if self._easy_requests >= SLACK_DECAY_REQUESTS:
+                self.slack_s = max(DEADLINE_SLACK_S, 0.5 * self.slack_s)
+                self._easy_requests = 0
+        self._gave_up = False
 
     def _send(self, packet: bytes) -> Tuple[float, float]:
         """Flush, write; return (time before the write, time after it)."""
@@ -527,6 +560,7 @@ class Bus:
             # What makes a cycle slow: a wait to the deadline (a missing reply, or asking for
             # more than is coming).
             self.counters.deadline_waits += 1
+            self._gave_up = True
         return data
 
     # the echo ------------------------------------------------------------------------------

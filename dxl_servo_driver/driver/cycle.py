@@ -350,8 +350,7 @@ class Cycle:
             self._need_full = False
             refused = self._stale.refused
             self._take_block(result, reading.stamp, received)
-            self._linger_next = self._stale.refused > refused
-            self.cycles += 1
+            self._after_dating(refused)
             return reading.stamp
         bus = self._link.io()
         for block, ids in [] if self._bulk_2 else self._groups[1:]:
@@ -375,9 +374,17 @@ class Cycle:
             self._last_full_s = reading.stamp
         refused = self._stale.refused
         self._take_results(result, reading.stamp, received)
-        self._linger_next = self._stale.refused > refused
-        self.cycles += 1
+        self._after_dating(refused)
         return reading.stamp
+
+    def _after_dating(self, refused_before: int) -> None:
+        """End a cycle's read: a sample refused as older than its request tells of a late reply."""
+        self._linger_next = self._stale.refused > refused_before
+        if self._linger_next:
+            # It was taken in the place of this read's own, which came after its deadline: the
+            # next read lingers to get back in step, and the deadlines get more slack.
+            self._link.io().raise_slack()
+        self.cycles += 1
 
     def _judge_fast(self, fast_parts: int, result: SyncResult) -> None:
         """

@@ -108,6 +108,8 @@ def _bus_status(node_name: str, config: DriverConfig, manager: Manager, facts: C
         'stale_samples_refused': stats.stale_refused,
         'flushed_bytes': counters.flushed_bytes if counters else 0,
         'deadline_waits': counters.deadline_waits if counters else 0,
+        # The slack every reply deadline has now: raised when replies came late (bus.py).
+        'deadline_slack_ms': f'{bus.slack_s * 1e3:g}' if bus is not None else '',
         'adapter_echo': bus.echo if bus is not None else False,
         'retries': stats.retries, 'retry_successes': stats.retry_successes,
         'recoveries': stats.recoveries, 'port_lost': manager.port_lost,

@@ -1,0 +1,116 @@
+"""
+The reply deadline's slack: raised by replies that came late, never by a servo that is silent.
+
+A read that gives up at its deadline and then finds its replies waiting before the next request
+was too hasty, and so was one whose late replies the cycle took for the next read's answers
+(their Realtime Tick dates them before that request): the slack doubles (up to a cap), so later
+reads take their own replies. A servo that never answers leaves nothing behind, and the slack
+stays small: a silent servo costs each cycle as little as before.
+"""
+
+import time
+
+from adapter_faults import FaultyPort
+from dxl_servo_driver import bus as bus_module
+from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, MAX_DEADLINE_SLACK_S
+from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.port import SimPortHandler
+from dxl_servo_driver.sim.virtual_bus import configure_servos
+import pytest
+
+BAUD = 1_000_000
+IDS = (1, 2, 3)
+ADDRESS, LENGTH = 132, 4   # present_position
+
+
+def faulty_bus(delay_ms: float, seed: int = 1) -> Bus:
+    sim = SimBus(list(IDS), seed=seed, boot_time_s=0.0)
+    configure_servos(sim, BAUD, None)
+    port = FaultyPort(SimPortHandler(sim, 'sim', BAUD), seed=seed)
+    port.set(delay_ms=(delay_ms, delay_ms))   # every reply this late, in order
+    return Bus(port, BAUD, latency_timer_s=0.0, return_delay_s=0.0)
+
+
+def answered(bus: Bus) -> int:
+    """Sync read, then pause as a slow loop does (a late reply is waiting by the next one)."""
+    result = bus.sync_read(ADDRESS, LENGTH, IDS)
+    time.sleep(0.03)   # longer than any delay here
+    return sum(isinstance(data, bytes) for data in result.data.values())
+
+
+def test_replies_later_than_the_slack_raise_it_until_they_are_taken() -> None:
+    # Every reply 3 ms late: beyond the first slack (2 ms) but within its double.
+    bus = faulty_bus(3.0)
+    assert bus.slack_s == DEADLINE_SLACK_S
+    for _ in range(10):   # a read gives up at its deadline; its replies wait by the next one
+        answered(bus)
+        if bus.counters.slack_raised:
+            break
+    assert bus.counters.slack_raised == 1 and bus.slack_s == 2 * DEADLINE_SLACK_S
+    # Now the replies are taken (a busy machine may still lose one: and raise it once more).
+    assert sum(answered(bus) == len(IDS) for _ in range(20)) >= 15
+    assert bus.slack_s <= 4 * DEADLINE_SLACK_S
+
+
+def test_the_slack_never_passes_its_cap() -> None:
+    bus = faulty_bus(1000.0 * MAX_DEADLINE_SLACK_S + 4.0)   # later than any slack allows
+    for _ in range(12):
+        answered(bus)
+    assert bus.slack_s == MAX_DEADLINE_SLACK_S
+
+
+def test_a_silent_servo_leaves_the_slack_as_it_is() -> None:
+    sim = SimBus([1, 2], seed=3, boot_time_s=0.0)
+    configure_servos(sim, BAUD, None)
+    bus = Bus(SimPortHandler(sim, 'sim', BAUD), BAUD, latency_timer_s=0.0, return_delay_s=0.0)
+    for _ in range(10):
+        result = bus.sync_read(ADDRESS, LENGTH, (1, 2, 7))   # id 7 is not there
+        assert isinstance(result.data[1], bytes) and not isinstance(result.data[7], bytes)
+    assert bus.counters.deadline_waits >= 10
+    assert bus.slack_s == DEADLINE_SLACK_S and bus.counters.slack_raised == 0
+
+
+def test_a_raised_slack_comes_back_down_after_requests_with_nothing_late(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(bus_module, 'SLACK_DECAY_REQUESTS', 5)
+    bus = faulty_bus(0.0)
+    bus.raise_slack()
+    assert bus.slack_s == 2 * DEADLINE_SLACK_S
+    for _ in range(4):
+        assert answered(bus) == len(IDS)
+    assert bus.slack_s == 2 * DEADLINE_SLACK_S
+    answered(bus)
+    assert bus.slack_s == DEADLINE_SLACK_S
+
+
+def test_a_cycle_behind_late_replies_gets_the_slack_they_need_and_reads_well_again() -> None:
+    # Back to back, as the node at full speed: the late replies of one read arrive during the
+    # next, are taken for its answers and refused by their tick; the cycle raises the slack.
+    from dxl_servo_driver.config import validate
+    from dxl_servo_driver.manager import Manager
+    from dxl_servo_driver.transports import SimTransport
+    from node_harness import sim_params
+    sim = SimBus(list(IDS), seed=4, boot_time_s=0.0)
+    configure_servos(sim, BAUD, None)
+    port = FaultyPort(SimPortHandler(sim, 'sim', BAUD), seed=4)
+    joints = {f'j{i}': {'id': i, 'operating_mode': 'position'} for i in IDS}
+    manager = Manager(validate(sim_params(joints, latency_timer=0.0)), info=lambda _: None,
+                      warn=lambda _: None, port_factory=lambda _: SimTransport(sim, lambda: port))
+    manager.configure()
+    manager.activate()
+    try:
+        bus = manager._ctx.link.io()
+        assert bus.slack_s == DEADLINE_SLACK_S
+        port.set(delay_ms=(5.0, 5.0))   # later than the first slack and the tick's tolerance
+        fresh_run = 0
+        for _ in range(200):
+            assert manager.cycle_begin(full=False)
+            manager.cycle_end()
+            fresh_run = fresh_run + 1 if all(s.fresh for s in manager.joints) else 0
+            if fresh_run >= 20:
+                break
+        assert fresh_run >= 20, 'the cycle never read well again'
+        assert bus.slack_s > DEADLINE_SLACK_S and bus.counters.slack_raised >= 1
+    finally:
+        manager.deactivate()
+        manager.close()
