@@ -137,4 +137,9 @@ def lines(result: Dict[str, Any]) -> List[str]:
 
 
 if __name__ == '__main__':
-    print('\n'.join(lines(measure())))
+    figures = measure()
+    if sys.argv[1:] == ['--json']:
+        import json
+        print(json.dumps(figures))
+    else:
+        print('\n'.join(lines(figures)))
