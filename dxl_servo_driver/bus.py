@@ -72,9 +72,11 @@ FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}
 # DEADLINE_SLACK_S and doubles, up to MAX_DEADLINE_SLACK_S, whenever a reply shows it came after
 # its deadline, late rather than lost (a busy machine, an adapter's jitter): the bytes a read gave
 # up on wait before the next request, or the caller finds a reply dated before its request
-# (Bus.raise_slack); SLACK_DECAY_REQUESTS requests in a row with no read given up on halve it
-# again, down to DEADLINE_SLACK_S. A servo that does not answer never raises it (nothing comes
-# late), so a silent servo costs each cycle the small slack, not the large one.
+# (Bus.raise_slack); or a sync read's whole block came only in the last half of the slack. So it
+# follows the jitter seen, before a reply is lost to it. SLACK_DECAY_REQUESTS requests in a row
+# with no read given up on halve it again, down to DEADLINE_SLACK_S. A servo that does not answer
+# never raises it (nothing comes late), so a silent servo costs each cycle the small slack, not
+# the large one.
 DEADLINE_SLACK_S = 0.002
 MAX_DEADLINE_SLACK_S = 0.016
 SLACK_DECAY_REQUESTS = 5000
@@ -952,7 +954,15 @@ class Bus:
         expected = self._reply_size(lengths, pending.fast)
         echo_size = len(pending.packet) if self.echo else 0
         echoes = self.counters.echoes
+        entered = time.monotonic()
         buffer = self._read(echo_size + expected, pending.deadline_s)
+        if len(buffer) == echo_size + expected:
+            # Whole, but in the last half of the slack while we waited for it: nearly given up
+            # on. More slack before a reply comes later still (a collect begun in that half
+            # cannot tell when the bytes came, and says nothing).
+            near = pending.deadline_s - 0.5 * self.slack_s
+            if entered < near < time.monotonic():
+                self.raise_slack()
         if echo_size and buffer[:echo_size] == pending.packet:
             buffer = buffer[echo_size:]
             self._echo_seen()

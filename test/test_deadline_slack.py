@@ -46,10 +46,26 @@ def test_replies_later_than_the_slack_raise_it_until_they_are_taken() -> None:
         answered(bus)
         if bus.counters.slack_raised:
             break
-    assert bus.counters.slack_raised == 1 and bus.slack_s == 2 * DEADLINE_SLACK_S
-    # Now the replies are taken (a busy machine may still lose one: and raise it once more).
+    assert bus.slack_s >= 2 * DEADLINE_SLACK_S
+    # Now the replies are taken (3 ms is in the last half of 4 ms: raised once more, to 8).
     assert sum(answered(bus) == len(IDS) for _ in range(20)) >= 15
-    assert bus.slack_s <= 4 * DEADLINE_SLACK_S
+    assert bus.slack_s <= 8 * DEADLINE_SLACK_S
+
+
+def test_a_block_that_comes_in_the_last_half_of_the_slack_raises_it_before_one_is_lost() -> None:
+    # 2 ms late: within the first slack (2 ms beyond the wire time), in its last half: taken,
+    # and the slack raised with no read given up on. (On a busy machine a first read may still
+    # miss it: a few buses are tried.)
+    raised_early = 0
+    for seed in range(1, 6):
+        bus = faulty_bus(2.0, seed)
+        if answered(bus) == len(IDS) and bus.counters.deadline_waits == 0:
+            assert bus.slack_s == 2 * DEADLINE_SLACK_S and bus.counters.slack_raised == 1
+            raised_early += 1
+            # Early in 4 ms now: no more (a busy machine may still raise it once).
+            assert sum(answered(bus) == len(IDS) for _ in range(10)) >= 9
+            assert bus.counters.slack_raised <= 2
+    assert raised_early >= 1
 
 
 def test_the_slack_never_passes_its_cap() -> None:
