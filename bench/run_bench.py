@@ -387,6 +387,10 @@ def run_case(n: int, baud: int, workdir: pathlib.Path) -> List[Dict[str, Any]]:
             # Cycles that did not read every servo well (not counted in rate_hz); a node's:
             # joint_states that lacked a joint (one with none is not published at all).
             'failed_cycles': sum(run['failures'] for run in runs),
+            # The workers say why: samples missing at the deadline, or refused as stale.
+            'missing_samples': sum(run.get('missing_samples', 0) for run in runs),
+            'stale_samples': sum(run.get('stale_samples', 0) for run in runs),
+            'slack_ms_at_end': [run['slack_ms'] for run in runs if 'slack_ms' in run],
             'sim_late_p50_us': pacing.get('late_p50_us'),
             'sim_late_p99_us': pacing.get('late_p99_us'),
             # The simulator set the pace: its replies were late (p99) by more than a tenth of

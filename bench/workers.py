@@ -68,7 +68,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     for servo_id in ids:
         bus.write(servo_id, block.indirect_map_address(), block.indirect_map_bytes())
     goals = [(servo_id, struct.pack('<i', 2048)) for servo_id in ids]
-    cycles = failures = 0
+    cycles = failures = missing = stale = 0
     wall0 = time.monotonic()
     cpu0 = time.process_time()
     # As the node's cycle: every read carries the Realtime Tick, which dates each sample (a
@@ -95,11 +95,13 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
                 data = result.data[servo_id]
                 if not isinstance(data, bytes):
                     good = False
+                    missing += 1
                     continue
                 values = decode(data)
             if not clocks[servo_id].check(values[tick], result.sent_s, received):
                 good = False
                 linger = True
+                stale += 1
         if linger:
             bus.raise_slack()   # as the node's cycle: a late reply, more slack
         bus.sync_write(116, 4, goals)
@@ -109,8 +111,13 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
             failures += 1
     wall = time.monotonic() - wall0
     cpu = time.process_time() - cpu0
+    counters = bus.counters
     bus.close()
-    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures}
+    # Why cycles failed: samples missing (no reply by the deadline) or refused as stale, and
+    # the deadline slack at the end.
+    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures,
+            'missing_samples': missing, 'stale_samples': stale, 'slack_ms': bus.slack_s * 1e3,
+            'slack_raised': counters.slack_raised}
 
 
 def main() -> None:
