@@ -150,7 +150,7 @@ class BlockTemplate:
         per_servo = struct.calcsize('<' + fields)
         if per_servo != length:
             raise ValueError(f'fields {fields!r} take {per_servo} bytes, the read {length}')
-        count = len(fields.replace('x', ''))   # codes: one value each (no counts, no pads)
+        count = len(struct.unpack('<' + fields, bytes(per_servo)))   # values per servo
         self.ids = ids
         self.fields_per_servo = count
         self.fast = fast
