@@ -2,18 +2,48 @@
 The two loops the benchmark compares with the node, each run in its own process.
 
 `python bench/workers.py sdk|bus N BAUD PORT SECONDS` prints one JSON line: cycles, wall seconds,
-CPU seconds (this process's own accounting), failed cycles. Both loops do what a control loop does:
+CPU seconds (this process's own accounting), failed cycles and why, after WARM_UP_S of cycles
+not counted (as the node's measure). Both loops do what a control loop does:
 read position, velocity and current of every servo, then write a goal position to every servo.
 A cycle counts only when every servo's sample came back good (for the bus loop: and dated after
 its request); any other is a failed cycle, counted apart and not as a cycle, so a rate is never
 made of cycles that read nothing (or something old).
 """
 
+import collections
 import json
 import struct
 import sys
 import time
-from typing import Dict
+from typing import Callable, Counter, Dict
+
+# Cycles run before the measured ones, as the node's measure warms up: caches filled, the
+# deadline slack fitted to the machine.
+WARM_UP_S = 0.3
+
+
+def measure(cycle: Callable[[Counter[str]], bool], seconds: float) -> Dict[str, float]:
+    """
+    Run cycle() for WARM_UP_S, then for seconds, counting the second stretch only.
+
+    cycle(why) returns whether every servo's sample came back good; it counts in why what went
+    wrong. A cycle that was not good is counted as failed, never as a cycle.
+    """
+    why: Counter[str] = collections.Counter()
+    warm_until = time.monotonic() + WARM_UP_S
+    while time.monotonic() < warm_until:
+        cycle(why)
+    why.clear()
+    cycles = failures = 0
+    wall0 = time.monotonic()
+    cpu0 = time.process_time()
+    while time.monotonic() - wall0 < seconds:
+        if cycle(why):
+            cycles += 1
+        else:
+            failures += 1
+    return {'cycles': cycles, 'wall_s': time.monotonic() - wall0,
+            'cpu_s': time.process_time() - cpu0, 'failures': failures, **why}
 
 
 def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, float]:
@@ -30,10 +60,8 @@ def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
     for servo_id in ids:
         reader.addParam(servo_id)
         writer.addParam(servo_id, [0x00, 0x08, 0x00, 0x00])
-    cycles = failures = 0
-    wall0 = time.monotonic()
-    cpu0 = time.process_time()
-    while time.monotonic() - wall0 < seconds:
+
+    def cycle(why: Counter[str]) -> bool:
         good = reader.txRxPacket() == sdk.COMM_SUCCESS
         for servo_id in ids:
             if reader.isAvailable(servo_id, 126, 10):
@@ -42,15 +70,12 @@ def sdk_loop(n: int, baud: int, port_name: str, seconds: float) -> Dict[str, flo
                 reader.getData(servo_id, 126, 2)
             else:
                 good = False
+                why['missing_samples'] += 1
         writer.txPacket()
-        if good:
-            cycles += 1
-        else:
-            failures += 1
-    wall = time.monotonic() - wall0
-    cpu = time.process_time() - cpu0
+        return good
+    figures = measure(cycle, seconds)
     port.closePort()
-    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures}
+    return figures
 
 
 def bus_loop(n: int, baud: int, port_name: str, seconds: float,
@@ -68,9 +93,6 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     for servo_id in ids:
         bus.write(servo_id, block.indirect_map_address(), block.indirect_map_bytes())
     goals = [(servo_id, struct.pack('<i', 2048)) for servo_id in ids]
-    cycles = failures = missing = stale = 0
-    wall0 = time.monotonic()
-    cpu0 = time.process_time()
     # As the node's cycle: every read carries the Realtime Tick, which dates each sample (a
     # stale one is a failure, and the next read lingers to get back in step).
     # The usual clean block is decoded whole by the bus (fields given), as in the node.
@@ -80,12 +102,13 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     decode = block.decode_tagged
     tick = block.index['realtime_tick']
     clocks = {servo_id: TickClock() for servo_id in ids}
-    linger = False
-    while time.monotonic() - wall0 < seconds:
-        result = bus.begin_sync_read(block.read_address, length, ids, fast, linger,
+    linger = [False]
+
+    def cycle(why: Counter[str]) -> bool:
+        result = bus.begin_sync_read(block.read_address, length, ids, fast, linger[0],
                                      fields).collect()
         received = time.monotonic()
-        linger = False
+        linger[0] = False
         good = True
         whole = result.values
         for index, servo_id in enumerate(ids):
@@ -95,29 +118,24 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
                 data = result.data[servo_id]
                 if not isinstance(data, bytes):
                     good = False
-                    missing += 1
+                    why['missing_samples'] += 1
                     continue
                 values = decode(data)
             if not clocks[servo_id].check(values[tick], result.sent_s, received):
                 good = False
-                linger = True
-                stale += 1
-        if linger:
+                linger[0] = True
+                why['stale_samples'] += 1
+        if linger[0]:
             bus.raise_slack()   # as the node's cycle: a late reply, more slack
         bus.sync_write(116, 4, goals)
-        if good:
-            cycles += 1
-        else:
-            failures += 1
-    wall = time.monotonic() - wall0
-    cpu = time.process_time() - cpu0
-    counters = bus.counters
+        return good
+    figures = measure(cycle, seconds)
     bus.close()
     # Why cycles failed: samples missing (no reply by the deadline) or refused as stale, and
     # the deadline slack at the end.
-    return {'cycles': cycles, 'wall_s': wall, 'cpu_s': cpu, 'failures': failures,
-            'missing_samples': missing, 'stale_samples': stale, 'slack_ms': bus.slack_s * 1e3,
-            'slack_raised': counters.slack_raised}
+    figures['slack_ms'] = bus.slack_s * 1e3
+    figures['slack_raised'] = bus.counters.slack_raised
+    return figures
 
 
 def main() -> None:
