@@ -151,7 +151,6 @@ class BlockTemplate:
         if per_servo != length:
             raise ValueError(f'fields {fields!r} take {per_servo} bytes, the read {length}')
         count = len(struct.unpack('<' + fields, bytes(per_servo)))   # values per servo
-        self.ids = ids
         self.fields_per_servo = count
         self.fast = fast
         overhead = FAST_PART_OVERHEAD if fast else STATUS_OVERHEAD

@@ -257,16 +257,6 @@ class StateBlock(BlockShape):
         values = self.tagged_struct.unpack_from(data, offset)
         return values if self.has_tick else values + (0,)
 
-    def decoder(self, length: int) -> 'Callable[[bytes], tuple[int, ...]]':
-        """Return the decoder of a read of length bytes (motion, tagged or whole)."""
-        if length == self.size:
-            return self.decode
-        if self.tagged_size <= length < self.size:
-            return self.decode_tagged   # a block without a tick read a few bytes on (a tag)
-        if length == self.motion_size:
-            return self.decode_motion
-        raise ValueError(f'no state block part is {length} bytes long')
-
     def restarted(self, values: tuple[int, ...]) -> bool:
         """Return True when the values show the indirect mapping was lost (servo restarted)."""
         return self.has_canary and values[self.canary_index] == 0
