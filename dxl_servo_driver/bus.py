@@ -80,6 +80,9 @@ FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}
 DEADLINE_SLACK_S = 0.002
 MAX_DEADLINE_SLACK_S = 0.016
 SLACK_DECAY_REQUESTS = 5000
+# A read sleeps until its bytes can be there only when that is further off than this: a sleep
+# is a wake-up too, and a shorter one saves none.
+MIN_SLEEP_S = 100e-6
 # One-off reads differ in length over this many consecutive requests (see Bus.read).
 READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
@@ -411,10 +414,14 @@ class Bus:
     def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
                  return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
         self.port = port
+        # A real device: its bytes come no faster than the wire carries them (Bus._read).
+        self._paced = bool(getattr(port, 'paced', False))
         self.baud_bps = baud_bps
         self.latency_timer_s = latency_timer_s
-        # The largest Return Delay Time expected on this bus (the factory default is 500 us).
+        # The largest Return Delay Time expected on this bus (the factory default is 500 us),
+        # and the smallest: no answer comes sooner than that after its request.
         self.return_delay_s = return_delay_s
+        self.least_return_delay_s = 0.0
         self.framer = framer
         self.default_framer = framer
         self._framers: Dict[int, Framer] = {}   # ids that speak another protocol
@@ -550,9 +557,21 @@ class Bus:
             return bytes((address, length))
         return struct.pack('<HH', address, length)
 
-    def _read(self, size: int, deadline_s: float, to_deadline: bool = False) -> bytes:
-        """Read up to size bytes by deadline_s; to_deadline: waiting it out is the point."""
+    def _read(self, size: int, deadline_s: float, to_deadline: bool = False,
+              due_s: float = 0.0) -> bytes:
+        """
+        Read up to size bytes by deadline_s; to_deadline: waiting it out is the point.
+
+        due_s: the earliest they can all be there. On a port whose bytes come at wire speed
+        (`paced`) the read sleeps until then: a tty wakes a poller at every piece that comes
+        (each servo's status packet, each USB transfer), and each wake-up costs more CPU than
+        the read itself (40-70 us of a core on the benchmark's machine).
+        """
         size = max(1, size)
+        if self._paced:
+            wait_s = min(due_s, deadline_s) - time.monotonic()
+            if wait_s > MIN_SLEEP_S:
+                time.sleep(wait_s)
         try:
             data = self.port.read(size, max(0.0, deadline_s - time.monotonic()))
         except OSError as exc:
@@ -954,7 +973,12 @@ class Bus:
         echo_size = len(pending.packet) if self.echo else 0
         echoes = self.counters.echoes
         entered = time.monotonic()
-        buffer = self._read(echo_size + expected, pending.deadline_s)
+        # The earliest the whole block can be here: the line carries the request, then each
+        # answer after its servo's Return Delay Time (a fast read's after the first's only).
+        # An echo comes while the request goes out.
+        due_s = (pending.sent_s + self.byte_time_s(len(pending.packet) + expected)
+                 + (1 if pending.fast else len(ids)) * self.least_return_delay_s)
+        buffer = self._read(echo_size + expected, pending.deadline_s, due_s=due_s)
         if len(buffer) == echo_size + expected:
             # Whole, but in the last half of the slack while we waited for it: nearly given up
             # on. More slack before a reply comes later still (a collect begun in that half

@@ -65,6 +65,9 @@ class RawPort(Protocol):
 class SerialPort:
     """A serial device: one descriptor of its own, read with poll(), every OS error a PortError."""
 
+    # Its bytes come at wire speed, never sooner: a reader may sleep until they can be there.
+    paced = True
+
     def __init__(self, device: str, baud_bps: int) -> None:
         self.device = device
         try:

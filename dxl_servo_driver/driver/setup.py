@@ -152,7 +152,9 @@ class Setup:
 
     def _set_return_delay(self) -> None:
         delays = [self._link.read(servo, 'return_delay_time') for servo in self._roster.active()]
-        self._link.io().return_delay_s = max(delays, default=250) * RETURN_DELAY_UNIT_S
+        bus = self._link.io()
+        bus.return_delay_s = max(delays, default=250) * RETURN_DELAY_UNIT_S
+        bus.least_return_delay_s = min(delays, default=0) * RETURN_DELAY_UNIT_S
 
     # hold and torque ------------------------------------------------------------------------
     def activate(self, servos: List[Servo]) -> None:
