@@ -87,6 +87,8 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     from dxl_servo_driver.bus import Bus
     from dxl_servo_driver.serial_port import open_port
     from dxl_servo_driver.models import model_for
+    from dxl_servo_driver.timerslack import fine_timer_slack
+    fine_timer_slack()   # as the node's cycle thread
     block = state_block.state_block(model_for(1030), 'present_current')
     bus = Bus(open_port(port_name, baud), baud, latency_timer_s=0.0, return_delay_s=0.0)
     ids = list(range(1, n + 1))

@@ -83,6 +83,11 @@ SLACK_DECAY_REQUESTS = 5000
 # A read sleeps until its bytes can be there only when that is further off than this: a sleep
 # is a wake-up too, and a shorter one saves none.
 MIN_SLEEP_S = 100e-6
+# The turnaround a sync read's whole block comes after its wire time (Bus.turnaround_s) is
+# learned so that this share of reads finds every byte there when its sleep ends; the rest wait
+# on in poll(). A step moves it by TURNAROUND_STEP_S and a twentieth of itself.
+TURNAROUND_ON_TIME = 0.8
+TURNAROUND_STEP_S = 10e-6
 # One-off reads differ in length over this many consecutive requests (see Bus.read).
 READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
@@ -422,6 +427,9 @@ class Bus:
         # and the smallest: no answer comes sooner than that after its request.
         self.return_delay_s = return_delay_s
         self.least_return_delay_s = 0.0
+        # How long after its wire time a sync read's block is whole on this port: the device's
+        # or simulator's turnaround, an adapter's latency timer (learned by Bus._read).
+        self.turnaround_s = 0.0
         self.framer = framer
         self.default_framer = framer
         self._framers: Dict[int, Framer] = {}   # ids that speak another protocol
@@ -568,20 +576,41 @@ class Bus:
         the read itself (40-70 us of a core on the benchmark's machine).
         """
         size = max(1, size)
-        if self._paced:
-            wait_s = min(due_s, deadline_s) - time.monotonic()
+        learn = self._paced and due_s > 0.0
+        if learn:
+            wait_s = min(due_s + self.turnaround_s, deadline_s) - time.monotonic()
             if wait_s > MIN_SLEEP_S:
                 time.sleep(wait_s)
         try:
             data = self.port.read(size, max(0.0, deadline_s - time.monotonic()))
         except OSError as exc:
             raise _port_lost(exc) from None
+        if learn and len(data) >= size:
+            self._learn_turnaround(bool(getattr(self.port, 'waited', False)))
         if len(data) < size and not to_deadline:
             # What makes a cycle slow: a wait to the deadline (a missing reply, or asking for
             # more than is coming).
             self.counters.deadline_waits += 1
             self._gave_up = True
         return data
+
+    def _learn_turnaround(self, waited: bool) -> None:
+        """
+        Move the learned turnaround after a whole block: later if it had to be waited for.
+
+        Sleeping until the bytes are all there saves the wake-ups of a poll() that each piece
+        ends (each servo's answer, each USB transfer); sleeping longer than that delays the
+        cycle. A stochastic quantile: up by TURNAROUND_ON_TIME of a step when the block had to
+        be waited for, down by the rest of one when it was there, so that share of reads finds
+        it there. Held below the latency timer and a millisecond: beyond, the poll is cheaper
+        than a late wake. A read that did not get its block (a silent servo) says nothing.
+        """
+        step = TURNAROUND_STEP_S + 0.05 * self.turnaround_s
+        if waited:
+            self.turnaround_s = min(self.turnaround_s + TURNAROUND_ON_TIME * step,
+                                    self.latency_timer_s + 0.001)
+        else:
+            self.turnaround_s = max(0.0, self.turnaround_s - (1.0 - TURNAROUND_ON_TIME) * step)
 
     # the echo ------------------------------------------------------------------------------
     def _echo_seen(self) -> None:

@@ -67,6 +67,8 @@ class SerialPort:
 
     # Its bytes come at wire speed, never sooner: a reader may sleep until they can be there.
     paced = True
+    # Whether the last read had to wait for its bytes (they were not all there when it began).
+    waited = False
 
     def __init__(self, device: str, baud_bps: int) -> None:
         self.device = device
@@ -179,6 +181,15 @@ class SerialPort:
             raise PortError(f'{self.device}: the port is closed')
         chunks = bytearray()
         deadline = time.monotonic() + timeout_s
+        # What is there already is taken without a poll: a reader that slept until its bytes
+        # were due mostly finds them all. Any VMIN of at least 1 makes a read of an empty tty
+        # say EAGAIN (with VMIN 0 it says end of file, which _take takes for an unplugged one).
+        if self._vmin < 1:
+            self._wake_after(size)
+        self._take(chunks, size)
+        self.waited = len(chunks) < size
+        if not self.waited:
+            return bytes(chunks)
         while True:
             self._wake_after(size - len(chunks))
             remaining_ms = (deadline - time.monotonic()) * 1000.0

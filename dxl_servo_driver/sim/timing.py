@@ -22,29 +22,22 @@ import threading
 import time
 from typing import Callable, Iterable, Protocol
 
+from dxl_servo_driver import timerslack
 from dxl_servo_driver.protocol import BITS_PER_BYTE
 
 SPIN_S = 200e-6     # hybrid wait: sleep until this long before the deadline, then spin
 FINE_SPIN_S = 40e-6  # the same once the thread's timer slack is 1 ns (sleeps wake ~10 us late)
-_PR_SET_TIMERSLACK = 29
 
 
 def fine_timer_slack() -> float:
     """
     Ask Linux to wake this thread's sleeps on time; return the spin margin that then suffices.
 
-    A thread's default timer slack is 50 us, so short sleeps end 50-80 us late and a pacer must
-    spin for long before each deadline, burning a core. With the slack at 1 ns they end about
-    10 us late (20 us at p99), so a short spin keeps the pacing and frees the CPU.
+    With the default slack short sleeps end 50-80 us late and a pacer must spin for long before
+    each deadline, burning a core; with the slack at 1 ns (dxl_servo_driver.timerslack) a short
+    spin keeps the pacing and frees the CPU.
     """
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0:
-            return FINE_SPIN_S
-    except (OSError, AttributeError):
-        pass
-    return SPIN_S
+    return FINE_SPIN_S if timerslack.fine_timer_slack() else SPIN_S
 
 
 class ReplyLike(Protocol):
