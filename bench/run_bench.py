@@ -614,7 +614,8 @@ def top_case(workdir: pathlib.Path) -> Dict[str, Any]:
                       if line.startswith('VmRSS'))
         published = node.count
         node.transition(4)
-        node.transition(2)
+        node.transition(2)   # the port released: the floor takes the same bus
+        floor = floor_case(node, bus)
     finally:
         if node is not None:
             node.close()
@@ -635,7 +636,39 @@ def top_case(workdir: pathlib.Path) -> Dict[str, Any]:
             'cpu_percent': share(total),
             'us_per_cycle': round(total * CLOCK_TICK_S / (100.0 * wall) * 1e6),
             'joint_states_hz': round(published / wall, 1), 'rss_mb': round(rss_kb / 1024),
-            'threads_percent': {group: share(ticks) for group, ticks in groups.items()}}
+            'threads_percent': {group: share(ticks) for group, ticks in groups.items()},
+            'floor': floor,
+            'over_floor': round(share(total) / floor['cpu_percent'], 2)
+            if floor['cpu_percent'] else None}
+
+
+def floor_case(node: NodeUnderTest, bus: VirtualBus) -> Dict[str, Any]:
+    """
+    Measure bench/floor_loop.py on the `top` case's bus: the least an rclpy driver does there.
+
+    Its joint_states are counted by the same client as the node's (a subscriber costs the
+    publisher: both are measured with one).
+    """
+    from sensor_msgs.msg import JointState
+    namespace = f'{NAMESPACE}_floor'
+    got = [0]
+    subscription = node.client.create_subscription(
+        JointState, f'{namespace}/joint_states', lambda msg: got.__setitem__(0, got[0] + 1),
+        100, raw=True)
+    try:
+        out = subprocess.run(
+            [sys.executable, str(ROOT / 'bench' / 'floor_loop.py'), bus.link,
+             str(1_000_000), str(6), str(TOP_SECONDS), namespace],
+            capture_output=True, text=True, cwd=ROOT, timeout=TOP_SECONDS + 60)
+    finally:
+        node.client.destroy_subscription(subscription)
+    if out.returncode != 0:
+        raise RuntimeError(f'floor_loop failed: {out.stderr.strip()[-500:]}')
+    run = json.loads(out.stdout.strip().splitlines()[-1])
+    return {'cpu_percent': round(100.0 * run['cpu_s'] / run['wall_s'], 2),
+            'us_per_cycle': round(run['cpu_s'] / run['cycles'] * 1e6),
+            'joint_states_received': got[0], 'cycles': run['cycles'],
+            'whole_replies': run['whole_replies']}
 
 
 def cycle_cost_case() -> Optional[Dict[str, Any]]:
@@ -897,6 +930,11 @@ def extra_lines(extra: Dict[str, Any]) -> List[str]:
         lines.append(f'{top["case"]}: {top["cpu_percent"]} % of a core ({top["us_per_cycle"]} us '
                      f'per cycle; {threads}), {top["rss_mb"]} MB resident, joint_states '
                      f'{top["joint_states_hz"]} Hz')
+        floor = top.get('floor')
+        if floor:
+            lines.append(f'  floor (bench/floor_loop.py, the same bus): {floor["cpu_percent"]} % '
+                         f'({floor["us_per_cycle"]} us per cycle); the node {top["over_floor"]} '
+                         'x the floor')
     latency = extra.get('adapter_latency')
     if latency:
         lines.append(f'{latency["case"]}: N={latency["n"]} at {latency["baud"]} bps: '
