@@ -20,14 +20,13 @@ import tty
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
-import rclpy  # noqa: E402 - after the path set-up above
-from rclpy.serialization import serialize_message  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-
-from dxl_servo_driver import protocol  # noqa: E402
+from dxl_servo_driver import protocol  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.state_block import BLOCK_SHAPE  # noqa: E402
 from dxl_servo_driver.termios2 import set_tty_speed  # noqa: E402
 from dxl_servo_driver.timerslack import fine_timer_slack  # noqa: E402
+import rclpy  # noqa: E402
+from rclpy.serialization import serialize_message  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
 
 PERIOD_S = 0.01
 WARM_UP_S = 1.0
