@@ -284,16 +284,20 @@ class Manager:
                 self._ports.lose(exc)
             return False
 
-    def cycle_end(self, retry_until: Optional[float] = None) -> bool:
+    def cycle_end(self, retry_until: Optional[float] = None,
+                  chain: Optional[Callable[[], None]] = None) -> bool:
         """
         Collect the read of cycle_begin(); False when the port was lost meanwhile.
 
         A servo whose reply was lost or corrupted is read again on its own while the clock is
         before retry_until (the cycle's budget); a servo found restarted on its own is handed
-        to recovery.
+        to recovery. chain: the next read may go on the wire at once, before this one's samples
+        are taken, when nothing waits to be written first (driver/cycle.Cycle.end_read; chain()
+        is called right before it goes); `read_in_flight` then says so, and that read is
+        collected by the next cycle_end, with no cycle_write between.
         """
         try:
-            self._cycle.end_read(retry_until)
+            self._cycle.end_read(retry_until, chain)
         except PortError as exc:
             with self.lock:
                 self._ports.lose(exc)
@@ -307,6 +311,11 @@ class Manager:
     def abort_read(self) -> None:
         """Give up the sync read in flight, if any, and release the locks (idempotent)."""
         self._cycle.abort_read()
+
+    @property
+    def read_in_flight(self) -> bool:
+        """Return True while a cycle read is on the wire (begun, or chained by cycle_end)."""
+        return self._cycle.reading
 
     def cycle_write(self, tasks_until: Optional[float] = None) -> None:
         """Command timeouts, pending goals, recovery steps; port loss handled."""

@@ -92,6 +92,11 @@ class TaskRunner:
         """Return True when the joint has a task in progress."""
         return joint in self._tasks
 
+    @property
+    def idle(self) -> bool:
+        """Return True when no task is in progress."""
+        return not self._tasks
+
     def get(self, joint: str) -> Optional[Task]:
         """Return the joint's task in progress, or None."""
         return self._tasks.get(joint)

@@ -645,3 +645,79 @@ def test_a_horn_at_minus_pi_at_rest_is_not_a_restart(active: Tuple[Rig, Manager]
     arm = manager.servos['arm']
     assert arm.fresh and arm.restarts == 0
     assert arm.state[0] == 0 and XM430_UNITS.position_to_rad(arm.state[0]) == -math.pi
+
+
+def chained_read(manager: Manager, chained: List[int]) -> bool:
+    """Collect the read in flight offering to chain the next; return whether that went out."""
+    assert manager.cycle_end(None, chain=lambda: chained.append(1))
+    return manager.read_in_flight
+
+
+def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
+        active: Tuple[Rig, Manager]) -> None:
+    # Flat out with nothing to write, the next read goes out as soon as the last came back
+    # clean; each is taken while the next flies, and nothing else goes on the wire.
+    rig, manager = active
+    manager.health_period_s = 3600.0
+    read_states(manager, full=True)
+    rig.tap.packets.clear()
+    chained: List[int] = []
+    assert manager.cycle_begin()
+    for count in range(1, 6):
+        assert chained_read(manager, chained)
+        assert chained == [1] * count   # the caller stamps each before it goes
+        assert all(servo.fresh for servo in manager.order)
+    assert manager.cycle_end()
+    assert not manager.read_in_flight
+    assert [p.instruction for p in rig.tap.packets] == [Instruction.SYNC_READ] * 6
+    for servo in manager.order:
+        assert servo.fresh
+        assert servo.state[0] == rig.reg(servo.servo_id, 'present_position')
+    # The lock went with the last read: another thread's request is served.
+    answers: List[Any] = []
+    import threading
+    thread = threading.Thread(
+        target=lambda: answers.append(manager.read_register('arm', 'present_temperature')))
+    thread.start()
+    thread.join(timeout=5.0)
+    assert answers and answers[0].success
+
+
+@pytest.mark.parametrize('what', ['goal', 'task', 'whole block', 'restart'])
+def test_no_read_is_chained_before_what_must_go_first(active: Tuple[Rig, Manager],
+                                                       what: str) -> None:
+    rig, manager = active
+    manager.health_period_s = 3600.0
+    read_states(manager, full=True)
+    if what == 'task':
+        assert manager.reboot(['wheel'], wait=lambda tasks: None).success   # the cycle runs it
+    if what == 'restart':
+        rig.sim.powercycle(2)
+        rig.wait_booted(2)   # its motion reads all zeros: taking it asks the bus again
+    assert manager.cycle_begin(full=what == 'whole block')
+    if what == 'goal':
+        assert manager.command('position', ['arm'], [0.2]).success
+    rig.tap.packets.clear()
+    chained: List[int] = []
+    assert not chained_read(manager, chained)
+    assert chained == []
+    if what == 'goal':
+        manager.cycle_write()
+        assert [p.instruction for p in rig.tap.packets] == [Instruction.SYNC_WRITE]
+        assert rig.reg(1, 'goal_position') == XM430_UNITS.position_from_rad(0.2)
+    if what == 'restart':
+        assert manager.servos['wheel'].restarts == 1 and not manager.servos['wheel'].fresh
+
+
+def test_no_read_is_chained_on_a_bus_with_a_pair() -> None:
+    # A pair's two servos are compared at every cycle's write, and switched off at once when
+    # they fight: that write may not wait behind a read.
+    rig = Rig((1, 2, 3, 4))
+    manager = rig.manager(validate(params(**{'arm.secondary_id': 4})))
+    manager.configure()
+    manager.activate()
+    manager.health_period_s = 3600.0
+    read_states(manager, full=True)
+    assert manager.cycle_begin()
+    chained: List[int] = []
+    assert not chained_read(manager, chained) and chained == []

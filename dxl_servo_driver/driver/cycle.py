@@ -67,6 +67,11 @@ class _Ended:
         """Nothing is on the wire."""
 
 
+# What Cycle._begin puts in a ReadInFlight: the read, its stamp, whole or not, its length, the
+# servos a clean block decodes.
+_Begun = Tuple[Union[SyncRead, _Ended], float, bool, int, List[Servo]]
+
+
 @dataclass(eq=False)
 class ReadInFlight:
     """
@@ -83,11 +88,11 @@ class ReadInFlight:
     stamp: float
     full: bool
     length: int
+    servos: List[Servo]   # whose block a clean answer decodes, in order (as when it began)
     ended: bool = False
 
     @classmethod
-    def start(cls, lock: threading.RLock,
-              begin: Callable[[], Optional[Tuple[Union[SyncRead, _Ended], float, bool, int]]]
+    def start(cls, lock: threading.RLock, begin: Callable[[], Optional[_Begun]]
               ) -> Optional['ReadInFlight']:
         """Take the lock and begin(); None (the lock released) when begin() read nothing."""
         lock.acquire()
@@ -260,8 +265,7 @@ class Cycle:
         self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full))
         return self._reading is not None
 
-    def _begin(self, full: Optional[bool]
-               ) -> Optional[Tuple[Union[SyncRead, _Ended], float, bool, int]]:
+    def _begin(self, full: Optional[bool]) -> Optional[_Begun]:
         bus = self._link.io()
         if not self._groups and not self._group_1:
             return None
@@ -275,7 +279,7 @@ class Cycle:
         length = BLOCK.size if full else BLOCK.tagged_size   # _group_length: per model
         self._tag = (self._tag + 1) % READ_TAGS
         if not self._groups:
-            return _Ended(self._read_1(length)), stamp, full, length
+            return _Ended(self._read_1(length)), stamp, full, length, []
         if self._bulk_2:
             records = [(servo_id, block.read_address, _group_length(block, length, self._tag))
                        for block, ids in self._groups for servo_id in ids]
@@ -288,7 +292,7 @@ class Cycle:
                                           self.fast, self._linger_next,
                                           _TAGGED_FIELDS if whole else '')
         self._linger_next = False
-        return pending, stamp, full, length
+        return pending, stamp, full, length, self._block_servos
 
     def _read_1(self, length: int) -> SyncResult:
         """
@@ -333,23 +337,42 @@ class Cycle:
         if reading is not None:
             reading.abort()
 
-    def end_read(self, retry_until: Optional[float] = None) -> float:
-        """Collect the sync read begun by begin_read(); return its monotonic time."""
+    @property
+    def reading(self) -> bool:
+        """Return True while a cycle read is on the wire (begun, or chained by end_read)."""
+        return self._reading is not None
+
+    def end_read(self, retry_until: Optional[float] = None,
+                 chain: Optional[Callable[[], None]] = None) -> float:
+        """
+        Collect the sync read begun by begin_read(); return its monotonic time.
+
+        chain: when the block came back clean and nothing waits to go on the wire before the
+        next read (_may_chain), put that read on the wire at once, before this one's samples are
+        taken, calling chain() first (the caller's stamp of it): the cycle's bus time is not
+        held up by the taking. `reading` then says a read is in flight, and the caller writes
+        nothing until it collected it.
+        """
         reading, self._reading = self._reading, None
         if reading is None:
             raise RuntimeError('end_read() without a read in flight')
-        return reading.finish(lambda result: self._taken(reading, result, retry_until))
+        return reading.finish(lambda result: self._taken(reading, result, retry_until, chain))
 
     def _taken(self, reading: ReadInFlight, result: SyncResult,
-               retry_until: Optional[float]) -> float:
+               retry_until: Optional[float], chain: Optional[Callable[[], None]] = None) -> float:
         """Complete a cycle's read: the other layouts, retries, samples taken (lock held)."""
         received = time.monotonic()   # the bus dates requests on this clock
         if result.values is not None:
             # The usual cycle: one clean block, every servo decoded at once by the bus.
+            if chain is not None and self._may_chain(result.values, reading.servos):
+                chain()
+                # The lock is taken again (an RLock): released by this read's finish, it stays
+                # with the next one until that ends.
+                self._reading = ReadInFlight.start(self._lock, lambda: self._begin(None))
             self._fast_empty = 0
             self._need_full = False
             refused = self._stale.refused
-            self._take_block(result, reading.stamp, received)
+            self._take_block(result, reading.stamp, received, reading.servos)
             self._after_dating(refused)
             return reading.stamp
         bus = self._link.io()
@@ -408,7 +431,29 @@ class Cycle:
                 'nothing back while the servos answered on their own; sync reads from now on '
                 '(until the next configure)')
 
-    def _take_block(self, result: SyncResult, stamp: float, received: float) -> None:
+    def _may_chain(self, values: Tuple[int, ...], servos: List[Servo]) -> bool:
+        """
+        Return True when the next read may go on the wire before this block is taken.
+
+        Nothing may wait to be written before it (goals, a task's steps, a pair's torque-off:
+        none while a read is in flight), and the block must be taken without a transaction
+        (every servo known, no motion part of all zeros, which _take_one reads again to tell
+        a restart). What the cycle's write also does (command timeouts, hardware-error
+        recovery) still runs at every cycle that does not chain: every whole-block read (the
+        health part, at least once a second), every cycle with a goal.
+        """
+        if self._goals.waiting() or not self._tasks.idle or self._roster.secondary:
+            return False
+        fields = BLOCK.TAGGED_FIELDS
+        for index, servo in enumerate(servos):
+            start = index * fields
+            if servo.state is None or not (values[start] or values[start + 1]
+                                           or values[start + 2]):
+                return False
+        return True
+
+    def _take_block(self, result: SyncResult, stamp: float, received: float,
+                    servos: List[Servo]) -> None:
         """
         Take a block the bus decoded whole: each servo's motion and tick, dated, in order.
 
@@ -422,7 +467,7 @@ class Cycle:
         sent_s = result.sent_s
         fields = BLOCK.TAGGED_FIELDS
         start = 0
-        for index, servo in enumerate(self._block_servos):
+        for index, servo in enumerate(servos):
             sample = values[start:start + fields]
             start += fields
             state = servo.state

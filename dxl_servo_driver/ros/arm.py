@@ -308,6 +308,10 @@ class Arm:
                 self._host.get_logger().info(f'gripper {name!r}: ' + (
                     'holding an object' if held else 'no longer holding an object'))
 
+    def idle(self) -> bool:
+        """Return True when the cycle has nothing to prepare: no trajectory, no gripper goal."""
+        return not self.gripper_runs and not self.trajectories.busy
+
     def grasping(self) -> Dict[str, bool]:
         """Return whether each gripper holds something."""
         return {name: detector.grasping for name, detector in self.grasps.items()}

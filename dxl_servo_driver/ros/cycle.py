@@ -47,11 +47,15 @@ class CycleRunner:
 
     def __init__(self, host: Host, loop_rate_hz: float,
                  publish: Callable[[Any, bool], None],
-                 prepare: Callable[[float], None] = lambda now_s: None) -> None:
+                 prepare: Callable[[float], None] = lambda now_s: None,
+                 may_chain: Callable[[], bool] = lambda: False) -> None:
         self._host = host
         self._publish = publish
         # Called right before each cycle's goal write (trajectory sampling).
         self._prepare = prepare
+        # Whether prepare has nothing to do (no trajectory, no gripper goal): the next read may
+        # then go on the wire as soon as the last came back (Manager.cycle_end's chain).
+        self._may_chain = may_chain
         self._stop = threading.Event()
         self._wake = threading.Event()     # cuts the cycle's sleep short (stop, new loop_rate)
         self.thread: Optional[threading.Thread] = None
@@ -157,7 +161,11 @@ class CycleRunner:
 
         When the next cycle is due at once (the loop runs as fast as the bus allows), the next
         read goes on the wire before this cycle is published, so publishing overlaps the bus
-        transaction instead of adding to it. Any exception is logged, counted and survived.
+        transaction instead of adding to it; and when nothing is to be written before it (no
+        goal, task, trajectory), as soon as the last read's block came back clean, before its
+        samples are taken (chained): the bus waits on no Python. A chained cycle writes
+        nothing; its command timeouts are checked, and what they queue goes out at the next.
+        Any exception is logged, counted and survived.
         """
         manager = self._host.manager
         next_s = time.monotonic()
@@ -168,18 +176,26 @@ class CycleRunner:
                 if not pipelined:
                     reading = self._begin()
                 stamp, began_s = self._read_stamp, self._read_began_s
-                ok = reading and self._end(began_s)
-                reading = False
+                # Chained only while the loop runs flat out (the next cycle due by the time this
+                # read ends, as for pipelining) and nothing is to be prepared.
+                chain = (pipelined and next_s + self.period_s - time.monotonic()
+                         <= self.bus_cycle_s and self._may_chain())
+                ok = reading and self._end(began_s, chain)
+                chained = chain and manager.read_in_flight
+                reading = chained
                 period = self.period_s
                 next_s += period
                 now = time.monotonic()
                 if next_s < now - period:
                     next_s = now   # behind: run as fast as the bus allows, without a backlog
-                self._prepare(now)
-                manager.cycle_write(tasks_until=next_s - self.bus_cycle_s)
+                if chained:
+                    manager.check_command_timeout()   # queues only: written next cycle
+                else:
+                    self._prepare(now)
+                    manager.cycle_write(tasks_until=next_s - self.bus_cycle_s)
                 self._shortfall.add_cycle(time.monotonic() - began_s)
-                pipelined = next_s - time.monotonic() <= self.bus_cycle_s
-                if pipelined:
+                pipelined = chained or next_s - time.monotonic() <= self.bus_cycle_s
+                if pipelined and not chained:
                     reading = self._begin()
                 self._publish(stamp, ok)
             except Exception as exc:  # noqa: B902 - the cycle must survive anything
@@ -203,6 +219,11 @@ class CycleRunner:
 
     def _begin(self) -> bool:
         """Stamp and start a read; False when nothing is in flight (port lost, no servo)."""
+        self._stamp()
+        return self._host.manager.cycle_begin()
+
+    def _stamp(self) -> None:
+        """Take the time of the read about to go on the wire."""
         # In nanoseconds: the joint_states bytes take it as it is (messages.JointTable).
         clock = self._host.get_clock()
         # The ROS clock is the system clock (CLOCK_REALTIME, as time.time_ns) unless sim time
@@ -210,13 +231,12 @@ class CycleRunner:
         self._read_stamp = (clock.now().nanoseconds if clock.ros_time_is_active
                             else time.time_ns())
         self._read_began_s = time.monotonic()
-        return self._host.manager.cycle_begin()
 
-    def _end(self, began_s: float) -> bool:
+    def _end(self, began_s: float, chain: bool = False) -> bool:
         # Lost or corrupted replies are read again while the cycle has time (or twice the bus
         # time when the loop runs as fast as the bus allows).
         retry_until = began_s + max(0.9 * self.period_s, 2.0 * self.bus_cycle_s)
-        return self._host.manager.cycle_end(retry_until)
+        return self._host.manager.cycle_end(retry_until, self._stamp if chain else None)
 
     def _timer_cycle(self) -> None:
         manager = self._host.manager

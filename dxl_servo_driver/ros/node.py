@@ -74,7 +74,7 @@ class DriverNode(LifecycleNode):
         # MoveIt's actions, on a node and executor of their own (ros/actions.py says why).
         self.actions = Actions(self)
         self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
-                                   self.arm.prepare_goals)
+                                   self.arm.prepare_goals, self.arm.idle)
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.joints)
