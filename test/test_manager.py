@@ -6,6 +6,7 @@ driver writes is parsed back into Protocol 2.0 packets.
 """
 
 import math
+import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
@@ -675,7 +676,6 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
         assert servo.state[0] == rig.reg(servo.servo_id, 'present_position')
     # The lock went with the last read: another thread's request is served.
     answers: List[Any] = []
-    import threading
     thread = threading.Thread(
         target=lambda: answers.append(manager.read_register('arm', 'present_temperature')))
     thread.start()
@@ -684,8 +684,8 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
 
 
 @pytest.mark.parametrize('what', ['goal', 'task', 'whole block', 'restart'])
-def test_no_read_is_chained_before_what_must_go_first(active: Tuple[Rig, Manager],
-                                                       what: str) -> None:
+def test_no_read_is_chained_before_what_must_go_first(
+        active: Tuple[Rig, Manager], what: str) -> None:
     rig, manager = active
     manager.health_period_s = 3600.0
     read_states(manager, full=True)
