@@ -87,6 +87,9 @@ class Goal:
     def result(self, timeout_s: float = 15.0) -> Tuple[int, Any]:
         """Return (status, result) once the goal ended."""
         wait_until(self._result.done, timeout_s, 'the goal ended')
+        # The future is done before the executor ran its done callbacks (rclpy schedules them
+        # as a task): wait for the one that dates the end, or ended_s is still NaN.
+        wait_until(lambda: not math.isnan(self.ended_s), 5.0, 'the end dated')
         response = self._result.result()
         return response.status, response.result
 
