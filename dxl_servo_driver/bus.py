@@ -604,13 +604,15 @@ class Bus:
         ends (each servo's answer, each USB transfer); sleeping longer than that delays the
         cycle. A stochastic quantile: up by TURNAROUND_ON_TIME of a step when the block had to
         be waited for, down by the rest of one when it was there, so that share of reads finds
-        it there. Held below the latency timer and a millisecond: beyond, the poll is cheaper
-        than a late wake. A read that did not get its block (a silent servo) says nothing.
+        it there. Held below the latency timer and a quarter of the deadline's least slack:
+        a sleep never ends where a block taken is judged nearly given up on (the last half of
+        the slack, Bus._collect_sync). A read that did not get its block (a silent servo) says
+        nothing.
         """
         step = TURNAROUND_STEP_S + 0.05 * self.turnaround_s
         if waited:
             self.turnaround_s = min(self.turnaround_s + TURNAROUND_ON_TIME * step,
-                                    self.latency_timer_s + 0.001)
+                                    self.latency_timer_s + 0.25 * DEADLINE_SLACK_S)
         else:
             self.turnaround_s = max(0.0, self.turnaround_s - (1.0 - TURNAROUND_ON_TIME) * step)
 
