@@ -573,9 +573,10 @@ class Bus:
         Read up to size bytes by deadline_s; to_deadline: waiting it out is the point.
 
         due_s: the earliest they can all be there. On a port whose bytes come at wire speed
-        (`paced`) the read sleeps until then: a tty wakes a poller at every piece that comes
-        (each servo's status packet, each USB transfer), and each wake-up costs more CPU than
-        the read itself (40-70 us of a core on the benchmark's machine).
+        (`paced`) the read sleeps until then plus the learned turnaround (_learn_turnaround): a
+        tty wakes a poller at every piece that comes (each servo's status packet, each USB
+        transfer), and each wake-up costs more CPU than the read itself (40-70 us of a core on
+        the benchmark's machine).
         """
         size = max(1, size)
         learn = self._paced and due_s > 0.0

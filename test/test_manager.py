@@ -141,6 +141,12 @@ def read_states(manager: Manager, full: Optional[bool] = None,
     cycle_read(manager, retry_until, full)
 
 
+def motion_only(manager: Manager) -> None:
+    """Read the whole block once, then only motion and tick (the health part not due again)."""
+    manager.health_period_s = 3600.0
+    read_states(manager, full=True)
+
+
 def run_cycles(manager: Manager, done: Callable[[], bool], timeout_s: float = 5.0,
                step_s: float = 0.0) -> List[Dict[str, bool]]:
     """
@@ -619,8 +625,7 @@ def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
 def test_a_restart_is_caught_by_a_cycle_read_of_motion_and_tick(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active
-    manager.health_period_s = 3600.0
-    read_states(manager, full=True)
+    motion_only(manager)
     rig.tap.packets.clear()
     rig.sim.powercycle(2)
     rig.wait_booted(2)
@@ -659,8 +664,7 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
     # Flat out with nothing to write, the next read goes out as soon as the last came back
     # clean; each is taken while the next flies, and nothing else goes on the wire.
     rig, manager = active
-    manager.health_period_s = 3600.0
-    read_states(manager, full=True)
+    motion_only(manager)
     rig.tap.packets.clear()
     chained: List[int] = []
     assert manager.cycle_begin()
@@ -687,8 +691,7 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
 def test_no_read_is_chained_before_what_must_go_first(
         active: Tuple[Rig, Manager], what: str) -> None:
     rig, manager = active
-    manager.health_period_s = 3600.0
-    read_states(manager, full=True)
+    motion_only(manager)
     if what == 'task':
         assert manager.reboot(['wheel'], wait=lambda tasks: None).success   # the cycle runs it
     if what == 'restart':
@@ -716,8 +719,7 @@ def test_no_read_is_chained_on_a_bus_with_a_pair() -> None:
     manager = rig.manager(validate(params(**{'arm.secondary_id': 4})))
     manager.configure()
     manager.activate()
-    manager.health_period_s = 3600.0
-    read_states(manager, full=True)
+    motion_only(manager)
     assert manager.cycle_begin()
     chained: List[int] = []
     assert not chained_read(manager, chained) and chained == []
