@@ -266,19 +266,21 @@ class Manager:
             self._ctx.link.bus = None
 
     # the cycle ----------------------------------------------------------------------------
-    def cycle_begin(self, full: Optional[bool] = None) -> bool:
+    def cycle_begin(self, full: Optional[bool] = None,
+                    stamp: Optional[Callable[[], None]] = None) -> bool:
         """
         Put the cycle's state read on the wire unless the port is lost; False when none is.
 
         full: read the whole state block (health too); None: when it is due. The read holds
-        the lock until cycle_end() or abort_read(), in the same thread.
+        the lock until cycle_end() or abort_read(), in the same thread. stamp: called right
+        before the read goes on the wire, the lock held (the caller's stamp of its samples).
         """
         if self.port_lost:
             with self.lock:
                 if not self._ports.reconnect():
                     return False
         try:
-            return self._cycle.begin_read(full)
+            return self._cycle.begin_read(full, stamp)
         except PortError as exc:
             with self.lock:
                 self._ports.lose(exc)

@@ -1,6 +1,8 @@
 """The node's cycle drivers: its own thread (flat out, pipelined) and a ROS timer."""
 
 import math
+import time
+from typing import Any, List
 
 from node_harness import NodeHarness, sim_params
 import pytest
@@ -38,3 +40,32 @@ def test_the_cycle_reads_publishes_and_writes(top: dict) -> None:
         # Runtime loop_rate change applies to both drivers.
         assert h.set_parameter('loop_rate', 50.0).successful
         h.joint_states.wait(lambda m: len(m.name) == 2)
+
+
+@pytest.mark.parametrize('driver', ['thread', 'timer'])
+def test_a_cycle_that_waits_for_the_bus_stamps_its_read_after_the_wait(driver: str) -> None:
+    # A service's transaction holds the bus (the manager's lock) for as long as its deadlines
+    # allow; a cycle due meanwhile waits for it. Its samples are taken when its request goes
+    # out, after the wait: a stamp taken before it dated them up to the whole wait too early.
+    def stamp_s(msg: Any) -> float:
+        return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+    with NodeHarness(sim_params(JOINTS, cycle_driver=driver, loop_rate=100.0)) as h:
+        assert h.node is not None
+        h.joint_states.wait(lambda m: len(m.name) == 2)
+        for _ in range(2):   # a hold begun between a cycle's read and its write shows nothing
+            with h.node.manager.lock:
+                held_from = time.time()
+                time.sleep(0.3)
+                held_to = time.time()
+            during: List[float] = []
+
+            def look(msg: Any) -> bool:
+                if held_from < stamp_s(msg) < held_to:
+                    during.append(stamp_s(msg))
+                return stamp_s(msg) > held_to + 0.05
+
+            # Every message kept, not only those after this call: the one of the cycle that
+            # waited is published as soon as the lock is let go.
+            h.joint_states.wait(look, fresh=False)
+            assert during == [], f'stamped {held_to - during[0]:.3f} s before its read went out'

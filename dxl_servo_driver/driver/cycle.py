@@ -254,21 +254,27 @@ class Cycle:
         return plan
 
     # the read -----------------------------------------------------------------------------
-    def begin_read(self, full: Optional[bool] = None) -> bool:
+    def begin_read(self, full: Optional[bool] = None,
+                   stamp: Optional[Callable[[], None]] = None) -> bool:
         """
         Put the cycle's sync read on the wire and return; end_read() collects it.
 
         The read in flight (ReadInFlight) holds the manager's lock and the bus's until
         end_read() or abort_read(), in the same thread. False (nothing in flight, no lock held)
-        when no servo is to be read.
+        when no servo is to be read. stamp: called once the lock is held, right before the
+        read goes on the wire: a caller that stamped before waiting for the lock (held by a
+        service's transaction, up to its deadlines) would date the samples too early.
         """
-        self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full))
+        self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full, stamp))
         return self._reading is not None
 
-    def _begin(self, full: Optional[bool]) -> Optional[_Begun]:
+    def _begin(self, full: Optional[bool],
+               on_stamp: Optional[Callable[[], None]] = None) -> Optional[_Begun]:
         bus = self._link.io()
         if not self._groups and not self._group_1:
             return None
+        if on_stamp is not None:
+            on_stamp()
         stamp = self._clock()
         if full is None:
             full = stamp - self._last_full_s >= self.health_period_s or self._need_full

@@ -219,8 +219,12 @@ class CycleRunner:
 
     def _begin(self) -> bool:
         """Stamp and start a read; False when nothing is in flight (port lost, no servo)."""
+        # Stamped with the lock held, right before the request: a service's transaction may
+        # hold the bus for tens of milliseconds first.
+        if self._host.manager.cycle_begin(stamp=self._stamp):
+            return True
         self._stamp()
-        return self._host.manager.cycle_begin()
+        return False
 
     def _stamp(self) -> None:
         """Take the time of the read about to go on the wire."""
