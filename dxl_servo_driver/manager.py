@@ -10,20 +10,20 @@ ROS here: the node calls these methods and publishes.
 
 The parts in driver/ do the work; each is handed the shared Context (driver/context.py) and the
 parts it uses, built here in the order they depend on one another. Locks: the context's `lock`
-(an RLock) serialises requests and the cycle; the goal queue has a small lock of its own that
-commands take instead, so a command never waits for the bus. Order when both are needed: the
-context's lock, then the queue's. A read in flight holds the context's lock from cycle_begin()
+(re-entrant, and handed to a caller waiting for it before the next read: SharedLock)
+serialises requests and the cycle; the goal queue has a small lock of its own that commands
+take instead, so a command never waits for the bus. Order when both are needed: the context's
+lock, then the queue's. A read in flight holds the context's lock from cycle_begin()
 to cycle_end() or abort_read() (driver/cycle.ReadInFlight).
 """
 
-import threading
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.driver.context import Context, Logs, Stats
+from dxl_servo_driver.driver.context import Context, Logs, SharedLock, Stats
 from dxl_servo_driver.driver.cycle import Cycle, SILENT_AFTER_FAILURES
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.link import Link
@@ -73,7 +73,7 @@ class Manager:
         link = Link(max(1, config.ping_retries), should_stop, stale)
         ctx = Context(config=config, roster=roster, link=link, tasks=TaskRunner(clock),
                       port=PortState(), stale=stale, clock=clock,
-                      log=Logs(info, warn, error), lock=threading.RLock())
+                      log=Logs(info, warn, error), lock=SharedLock())
         self._ctx = ctx
         self.lock = ctx.lock
         self.servos = roster.by_name
@@ -325,10 +325,11 @@ class Manager:
             if self.port_lost or self._ctx.link.bus is None:
                 return
             try:
-                self.check_command_timeout()
+                # The parts themselves: their public faces would take the lock held here again.
+                self._goals.check_timeout()
                 self.pairs.check()
-                self.write_pending()
-                self.recover_hardware_errors()
+                self._cycle.write_pending()
+                self._recovery.recover_hardware_errors()
                 if tasks_until is not None:
                     _, ended = self.tasks.run(tasks_until)
                     for task, error in ended:

@@ -687,6 +687,49 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
     assert answers and answers[0].success
 
 
+@pytest.mark.parametrize('chain', [True, False])
+def test_a_request_waiting_for_the_lock_goes_before_the_next_read(
+        active: Tuple[Rig, Manager], chain: bool) -> None:
+    # A cycle running flat out let the lock go and took it back before a waiting service's
+    # thread was even woken (and a chained read never let it go): the service waited many
+    # cycles. Now whoever waits has it before the next read starts.
+    rig, manager = active
+    motion_only(manager)
+    reads = [0]
+    stop = threading.Event()
+    most_reads = 300   # the unfair lock of a chained cycle is let go only when it stops
+
+    def cycle() -> None:   # as the node's runner does, flat out
+        manager.cycle_begin()
+        while not stop.is_set() and reads[0] < most_reads:
+            manager.cycle_end(None, chain=(lambda: None) if chain else None)
+            reads[0] += 1
+            if not manager.read_in_flight:
+                manager.cycle_write()
+                manager.cycle_begin()
+        if manager.read_in_flight:
+            manager.cycle_end()
+
+    runner = threading.Thread(target=cycle)
+    runner.start()
+    try:
+        deadline = time.monotonic() + 5.0
+        while reads[0] < 3:
+            assert time.monotonic() < deadline, 'the cycle does not run'
+            time.sleep(0.001)
+        for _ in range(5):
+            before = reads[0]
+            answer = manager.read_register('arm', 'present_temperature')
+            assert answer.success, answer.message
+            # The read in flight when it came, and one more if it came just as that one
+            # went out; a third only if the machine did not wake it within LET_IN_S.
+            assert reads[0] - before <= 3, f'waited for {reads[0] - before} reads'
+    finally:
+        stop.set()
+        runner.join(timeout=5.0)
+    assert not runner.is_alive()
+
+
 @pytest.mark.parametrize('what', ['goal', 'task', 'whole block', 'restart'])
 def test_no_read_is_chained_before_what_must_go_first(
         active: Tuple[Rig, Manager], what: str) -> None:

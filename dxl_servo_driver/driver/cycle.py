@@ -22,13 +22,12 @@ or invented value.
 """
 
 from dataclasses import dataclass
-import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple, TypeVar, Union
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import FRAMERS, READ_TAGS, SyncRead, SyncResult
-from dxl_servo_driver.driver.context import Context
+from dxl_servo_driver.driver.context import Context, SharedLock
 from dxl_servo_driver.driver.goals import Goals, Pending
 from dxl_servo_driver.driver.servo import (
     BLOCK, IDX_HW_ERROR, IDX_TICK, IDX_TORQUE, Servo, Throttle)
@@ -41,6 +40,9 @@ T = TypeVar('T')
 SILENT_AFTER_FAILURES = 3
 # read_mode auto: this many Fast Sync Reads in a row with no part taken and it is given up.
 FAST_EMPTY_LIMIT = 3
+# The longest a read waits for those waiting for the lock to have it (a woken thread is
+# scheduled within a millisecond, unless the machine is swamped: then the cycle goes on).
+LET_IN_S = 0.02
 _TAGGED = BLOCK.tagged_struct   # motion and tick are laid out alike on every model
 _TAGGED_FIELDS = _TAGGED.format.lstrip('<')   # each servo's data in a whole-block decode
 # A cycle's goal per servo as the bus limit counts it: a position (4 bytes; 2 on the Protocol
@@ -83,7 +85,7 @@ class ReadInFlight:
     neither (publishing the last cycle).
     """
 
-    _lock: threading.RLock
+    _lock: SharedLock
     pending: Union[SyncRead, _Ended]
     stamp: float
     full: bool
@@ -92,7 +94,7 @@ class ReadInFlight:
     ended: bool = False
 
     @classmethod
-    def start(cls, lock: threading.RLock, begin: Callable[[], Optional[_Begun]]
+    def start(cls, lock: SharedLock, begin: Callable[[], Optional[_Begun]]
               ) -> Optional['ReadInFlight']:
         """Take the lock and begin(); None (the lock released) when begin() read nothing."""
         lock.acquire()
@@ -265,6 +267,9 @@ class Cycle:
         read goes on the wire: a caller that stamped before waiting for the lock (held by a
         service's transaction, up to its deadlines) would date the samples too early.
         """
+        # Called with the lock free: whoever waits for it (a service) has it first, or a cycle
+        # running flat out would take it back before they are even woken.
+        self._lock.let_waiting_in(LET_IN_S)
         self._reading = ReadInFlight.start(self._lock, lambda: self._begin(full, stamp))
         return self._reading is not None
 
@@ -372,7 +377,7 @@ class Cycle:
             # The usual cycle: one clean block, every servo decoded at once by the bus.
             if chain is not None and self._may_chain(result.values, reading.servos):
                 chain()
-                # The lock is taken again (an RLock): released by this read's finish, it stays
+                # The lock is taken again (re-entrant): released by this read's finish, it stays
                 # with the next one until that ends.
                 self._reading = ReadInFlight.start(self._lock, lambda: self._begin(None))
             self._fast_empty = 0
@@ -442,13 +447,15 @@ class Cycle:
         Return True when the next read may go on the wire before this block is taken.
 
         Nothing may wait to be written before it (goals, a task's steps, a pair's torque-off:
-        none while a read is in flight), and the block must be taken without a transaction
+        none while a read is in flight), nobody may wait for the lock (a chained read keeps
+        it), and the block must be taken without a transaction
         (every servo known, no motion part of all zeros, which _take_one reads again to tell
         a restart). What the cycle's write also does (command timeouts, hardware-error
         recovery) still runs at every cycle that does not chain: every whole-block read (the
         health part, at least once a second), every cycle with a goal.
         """
-        if self._goals.waiting() or not self._tasks.idle or self._roster.secondary:
+        if (self._goals.waiting() or not self._tasks.idle or self._roster.secondary
+                or self._lock.waiting):
             return False
         fields = BLOCK.TAGGED_FIELDS
         for index, servo in enumerate(servos):
