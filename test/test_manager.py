@@ -12,6 +12,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from dxl_servo_driver import state_block
 from dxl_servo_driver.config import DriverConfig, validate
+from dxl_servo_driver.driver.context import SharedLock
 from dxl_servo_driver.manager import Manager, ManagerError
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
@@ -728,6 +729,36 @@ def test_a_request_waiting_for_the_lock_goes_before_the_next_read(
         stop.set()
         runner.join(timeout=5.0)
     assert not runner.is_alive()
+
+
+def test_the_shared_lock_goes_to_who_waited_and_never_waits_on_itself() -> None:
+    lock = SharedLock()
+    held = threading.Event()
+    let_go = threading.Event()
+
+    def waiter() -> None:
+        with lock:
+            held.set()
+            let_go.wait(5.0)
+
+    thread = threading.Thread(target=waiter)
+    with lock:
+        thread.start()
+        deadline = time.monotonic() + 5.0
+        while lock.waiting != 1:
+            assert time.monotonic() < deadline, 'the waiter was never counted'
+            time.sleep(0.001)
+        # Held by this thread, the waiter cannot have it: no wait for it (the bound is 5 s).
+        started = time.monotonic()
+        lock.let_waiting_in(5.0)
+        assert time.monotonic() - started < 2.0
+    lock.let_waiting_in(5.0)   # not held: returns once the waiter holds it
+    assert held.is_set() and lock.waiting == 0
+    assert not lock.acquire(blocking=False)
+    let_go.set()
+    thread.join(timeout=5.0)
+    assert lock.acquire(blocking=False)
+    lock.release()
 
 
 @pytest.mark.parametrize('what', ['goal', 'task', 'whole block', 'restart'])

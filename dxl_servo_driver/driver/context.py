@@ -70,8 +70,8 @@ class SharedLock(_CRLock):
         Only those there when called: a stream of new callers cannot hold the cycle up for
         longer than one turn each.
         """
-        if self._arrived == self._served:
-            return
+        if self._arrived == self._served or self._is_owned():
+            return   # nobody waits, or this thread holds it: the waiters could not take it
         with self._turns:
             due = self._arrived
             self._turns.wait_for(lambda: self._served >= due, timeout_s)
