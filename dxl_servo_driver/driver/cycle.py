@@ -376,10 +376,9 @@ class Cycle:
         if result.values is not None:
             # The usual cycle: one clean block, every servo decoded at once by the bus.
             if chain is not None and self._may_chain(result.values, reading.servos):
-                chain()
                 # The lock is taken again (re-entrant): released by this read's finish, it stays
-                # with the next one until that ends.
-                self._reading = ReadInFlight.start(self._lock, lambda: self._begin(None))
+                # with the next one until that ends. chain() is its stamp, as begin_read's.
+                self._reading = ReadInFlight.start(self._lock, lambda: self._begin(None, chain))
             self._fast_empty = 0
             self._need_full = False
             refused = self._stale.refused
@@ -448,11 +447,11 @@ class Cycle:
 
         Nothing may wait to be written before it (goals, a task's steps, a pair's torque-off:
         none while a read is in flight), nobody may wait for the lock (a chained read keeps
-        it), and the block must be taken without a transaction
-        (every servo known, no motion part of all zeros, which _take_one reads again to tell
-        a restart). What the cycle's write also does (command timeouts, hardware-error
-        recovery) still runs at every cycle that does not chain: every whole-block read (the
-        health part, at least once a second), every cycle with a goal.
+        it), and the block must be taken without a transaction (every servo known, no motion
+        part of all zeros, which _take_one reads again to tell a restart). What the cycle's
+        write also does (command timeouts, hardware-error recovery) still runs at every cycle
+        that does not chain: every whole-block read (the health part, at least once a second),
+        every cycle with a goal.
         """
         if (self._goals.waiting() or not self._tasks.idle or self._roster.secondary
                 or self._lock.waiting):
