@@ -208,10 +208,12 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               'which 0 leaves in force).', 'rad (m)', 0.0, 10.0),
     ParamSpec('gripper', bool, False,
               'A gripper (current_based_position only): ~/gripper commands, grasp detection.'),
-    ParamSpec('gripper_open', float, 0.0, 'The position of ratio 0 in ~/gripper commands.',
+    ParamSpec('gripper_open', float, 0.0,
+              'The position of ratio 0 in ~/gripper commands. With gripper_closed it is the '
+              "gripper's travel: a goal beyond it, on any path, is refused.",
               'rad (m)', only_for='gripper'),
-    ParamSpec('gripper_closed', float, 0.0, 'The position of ratio 1 in ~/gripper commands.',
-              'rad (m)', only_for='gripper'),
+    ParamSpec('gripper_closed', float, 0.0, 'The position of ratio 1 in ~/gripper commands '
+              '(not gripper_open).', 'rad (m)', only_for='gripper'),
 )
 JOINT_PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in JOINT_PARAMS}
 JOINT_KEYS: Tuple[str, ...] = tuple(JOINT_PARAMS_BY_NAME)
@@ -269,6 +271,23 @@ class JointConfig:
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
         return dict(self.registers)
+
+    def position_limits(self) -> Tuple[Optional[float], Optional[float]]:
+        """
+        Return the lowest and highest position the joint may be sent to (joint units).
+
+        min_position/max_position, narrowed for a gripper to its travel (gripper_open ..
+        gripper_closed): in current_based_position the servo takes multi-turn goals, so a
+        gripper goal beyond its travel would turn the claw through the mechanism. None: no
+        end configured (the servo's own limits apply).
+        """
+        low, high = self.min_position, self.max_position
+        if self.gripper:
+            travel_low = min(self.gripper_open, self.gripper_closed)
+            travel_high = max(self.gripper_open, self.gripper_closed)
+            low = travel_low if low is None else max(low, travel_low)
+            high = travel_high if high is None else min(high, travel_high)
+        return low, high
 
 
 @dataclass(frozen=True)
@@ -446,6 +465,9 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
             raise ConfigError(f'{name}.{key}', f'only a gripper (`{name}.gripper: true`) has '
                               'this')
         ends.append(_joint_value(params, name, key))
+    if gripper and ends[0] == ends[1]:
+        raise ConfigError(f'{name}.gripper_closed', f'equals gripper_open ({ends[0]:g}): a '
+                          'gripper needs its travel (gripper_open .. gripper_closed, joint units)')
     prefix = f'{name}.registers.'
     registers = []
     for key in sorted(k for k in params if k.startswith(prefix)):
@@ -457,6 +479,11 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
                         _joint_value(params, name, 'goal_tolerance'),
                         *_frame_and_limits(params, name, registers),
                         *_secondary(params, name))
+    low, high = joint.position_limits()
+    if low is not None and high is not None and not low < high:
+        raise ConfigError(f'{name}.min_position', 'min_position..max_position leave nothing '
+                          f"of the gripper's travel {joint.gripper_open:g}.."
+                          f'{joint.gripper_closed:g} (gripper_open..gripper_closed)')
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)

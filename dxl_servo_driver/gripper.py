@@ -23,6 +23,8 @@ STALL_S = 0.2
 SHORT_OF_GOAL_RAD = 0.05
 # ... with at least this share of the goal current.
 AT_LIMIT = 0.7
+# A goal this close beyond an end of the travel is taken as that end (float rounding).
+TRAVEL_ROUNDING = 1e-9
 
 
 class GripperError(BadRequest):
@@ -45,7 +47,10 @@ def gripper_goal(spec: GripperSpec, position: float, ratio: float,
     Return (goal position rad, goal current A or None to keep the configured one).
 
     Exactly one of position and ratio is a number (the other NaN); the ratio runs from 0
-    (open) to 1 (closed); max_effort above the current limit is refused, not clipped.
+    (open) to 1 (closed). A position beyond the travel (open .. closed) is refused, not
+    clipped: a goal the mechanism cannot reach says the caller's units or its model of the
+    gripper are wrong, and the gripper must not be driven into its stops on a guess. So is
+    max_effort above the current limit.
     """
     has_position = not math.isnan(position)
     has_ratio = not math.isnan(ratio)
@@ -60,6 +65,16 @@ def gripper_goal(spec: GripperSpec, position: float, ratio: float,
         if not math.isfinite(position):
             raise GripperError(f'position {position} is not a finite number')
         goal = position
+    # A ratio of exactly 1 may land a rounding error past the end: that is the end.
+    low, high = sorted((spec.open_rad, spec.closed_rad))
+    if low - TRAVEL_ROUNDING <= goal < low:
+        goal = low
+    elif high < goal <= high + TRAVEL_ROUNDING:
+        goal = high
+    if not low <= goal <= high:
+        raise GripperError(f'position {goal:g} is beyond the travel of gripper {spec.name!r}: '
+                           f'{spec.open_rad:g} (open) .. {spec.closed_rad:g} (closed), '
+                           'its gripper_open and gripper_closed')
     if math.isnan(max_effort) or max_effort == 0.0:
         return goal, None
     if not math.isfinite(max_effort) or max_effort < 0.0:

@@ -77,12 +77,15 @@ class Goals:
         if abs(value) > 1e9:
             raise BadRequest(f'joint {name!r}: {value} is out of any range')
         if kind == 'position':
-            low, high = servo.joint.min_position, servo.joint.max_position
+            low, high = servo.joint.position_limits()
             if (low is not None and value < low) or (high is not None and value > high):
+                where = ('min_position, max_position and the travel gripper_open..'
+                         'gripper_closed' if servo.joint.gripper else
+                         'min_position, max_position')
                 raise BadRequest(
                     f'joint {name!r}: position {value:g} is beyond its limits '
                     f'{low if low is not None else "-inf"}..'
-                    f'{high if high is not None else "inf"} (min_position, max_position)')
+                    f'{high if high is not None else "inf"} ({where})')
         second = self._roster.secondary.get(name)
         goals = []
         for target in (servo, second) if second is not None else (servo,):

@@ -112,10 +112,11 @@ class Servo:
         """Return the lowest and highest position the joint may be sent to (joint units)."""
         ends = sorted(self.position_rad(raw) for raw in self.goal_position_range())
         low, high = ends
-        if self.joint.min_position is not None:
-            low = max(low, self.joint.min_position)
-        if self.joint.max_position is not None:
-            high = min(high, self.joint.max_position)
+        configured_low, configured_high = self.joint.position_limits()
+        if configured_low is not None:
+            low = max(low, configured_low)
+        if configured_high is not None:
+            high = min(high, configured_high)
         return low, high
 
     def position_rad(self, raw: int) -> float:
