@@ -23,6 +23,7 @@ from dxl_servo_driver.transports import open_transport, SimTransport, Transport
 from node_harness import NodeHarness, sim_params
 import pytest
 from rclpy.action import ActionClient
+from rclpy.qos import QoSProfile
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 Result = FollowJointTrajectory.Result
@@ -517,3 +518,34 @@ def test_the_arm_example_takes_moveits_two_actions() -> None:
         assert result.position == pytest.approx(1.0, abs=0.03)
         # Reached on the way in; the XL330 may overshoot a little before it settles.
         assert joint_rad('gripper') == pytest.approx(1.0, abs=0.08)
+
+
+def test_a_burst_of_goals_is_answered_whole(h: NodeHarness) -> None:
+    """
+    Fifty goals sent at once by one client: every one is answered, and every result comes.
+
+    The middleware's default request queue (depth 10) dropped all but about 15 of them, and
+    their client waited forever (actions.ACTION_QUEUE_DEPTH). The client's goal queue is the
+    default one; its result queue is deeper, as docs say a client asking for more than ten
+    results at once must make it (the answers to ended goals come back in one burst).
+    """
+    assert h.client is not None
+    deep = QoSProfile(depth=100)
+    client = ActionClient(h.client.node, FollowJointTrajectory,
+                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory',
+                          result_service_qos_profile=deep)
+    assert client.wait_for_server(timeout_sec=10.0), 'no follow_joint_trajectory server'
+    start = here(h, ['j1'])[0]
+    futures = [client.send_goal_async(goal_of(['j1'], [(0.5, [start + 0.001 * k], [])]))
+               for k in range(50)]
+    wait_until(lambda: all(future.done() for future in futures), 20.0,
+               f'all 50 goals answered ({sum(f.done() for f in futures)} were)')
+    handles = [future.result() for future in futures]
+    assert all(handle.accepted for handle in handles)
+    results = [handle.get_result_async() for handle in handles]
+    wait_until(lambda: all(result.done() for result in results), 20.0,
+               f'all 50 results come ({sum(r.done() for r in results)} did)')
+    statuses = [result.result().status for result in results]
+    # Each goal preempted the one before it; the last ran to its end.
+    assert statuses[-1] == GoalStatus.STATUS_SUCCEEDED, statuses
+    assert statuses[:-1] == [GoalStatus.STATUS_ABORTED] * 49, statuses

@@ -37,12 +37,25 @@ from dxl_servo_driver.ros.arm import Arm
 import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import qos_profile_services_default, QoSProfile
 from rclpy.task import Future
 from trajectory_msgs.msg import JointTrajectoryPoint
 
 __all__ = ['Actions']
 
 Result = FollowJointTrajectory.Result
+
+# The requests an action server's goal, cancel and result services hold before they are taken.
+# The middleware's default (10, which joint_trajectory_controller shares) dropped all but ~15 of
+# 50 goals sent at once, and their clients waited forever; a deeper queue costs only the
+# requests that are really waiting. What a client can rely on: this many requests of each kind,
+# from all its clients together, sent at once, are all answered.
+ACTION_QUEUE_DEPTH = 1000
+_REQUEST_QOS = QoSProfile(depth=ACTION_QUEUE_DEPTH, history=qos_profile_services_default.history,
+                          reliability=qos_profile_services_default.reliability,
+                          durability=qos_profile_services_default.durability)
+_QUEUES = {'goal_service_qos_profile': _REQUEST_QOS, 'result_service_qos_profile': _REQUEST_QOS,
+           'cancel_service_qos_profile': _REQUEST_QOS}
 
 
 class GoalRefused(BadRequest):
@@ -211,7 +224,7 @@ class Actions:
         self.follow_joint_trajectory = ActionServer(
             self.node, FollowJointTrajectory, f'{base}/follow_joint_trajectory',
             execute_callback=self._follow, goal_callback=lambda goal: GoalResponse.ACCEPT,
-            cancel_callback=self._cancel)
+            cancel_callback=self._cancel, **_QUEUES)
         # GripperCommand: ~/<joint>/gripper_cmd for every gripper joint, and ~/gripper_cmd as
         # well when there is one (MoveIt's GripperCommand controller sends to
         # <controller>/gripper_cmd: the controller is the node, or the node's joint).
@@ -224,7 +237,8 @@ class Actions:
             self.grippers[action] = ActionServer(
                 self.node, GripperCommand, action,
                 execute_callback=self._gripper_execute(joint),
-                goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=self._cancel)
+                goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=self._cancel,
+                **_QUEUES)
         self._thread = threading.Thread(target=self._spin, name='dxl_actions', daemon=True)
         self._thread.start()
 
