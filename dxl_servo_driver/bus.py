@@ -95,6 +95,9 @@ READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
 CONFIRM_ATTEMPTS = 3
 PING_REPLY_PARAMS = 3          # model number (2), firmware version (1)
+# How long past its wire time Bus.reply_delay listens for a ping's answer: longer than any
+# adapter's latency timer in use (Linux's FTDI default is 16 ms, its maximum 255 ms).
+LATENCY_LISTEN_S = 0.3
 # How long the bus stays suspicious after an anomaly: late replies of a frozen adapter arrive
 # within this window of the timeouts they caused.
 DIRTY_HOLD_S = 1.0
@@ -793,6 +796,35 @@ class Bus:
         data = self._transact(servo_id, Instruction.PING, b'', PING_REPLY_PARAMS, 'ping', None,
                               probe)[0]
         return data[0] | (data[1] << 8)
+
+    @_to_servo
+    def reply_delay(self, servo_id: int, listen_s: float = LATENCY_LISTEN_S) -> Optional[float]:
+        """
+        Return how long after its wire time a ping's answer came (s); None if none came.
+
+        The deadline is listen_s, not the latency timer in force: this is how an adapter's
+        real latency is measured where the OS does not say it (a pty, a non-FTDI adapter). The
+        delay holds the servo's Return Delay Time and the host's wake-up too.
+        """
+        framer = self.framer
+        request = self._request(framer.encode(servo_id, Instruction.PING), (servo_id,),
+                                framer.ping_reply_params)
+        reply_size = framer.status_overhead + framer.ping_reply_params
+        with self.lock:
+            _, written_s = self._send(request.packet)
+            due_s = written_s + self.byte_time_s(len(request.packet) + reply_size)
+            deadline = due_s + listen_s
+            want = reply_size + (len(request.packet) if self.echo else 0)
+            buffer = bytearray(self._read(want, deadline, to_deadline=True))
+            collected = self._collect(request, deadline, buffer, False,
+                                      lambda found: servo_id in found.answers)
+            came_s = time.monotonic()
+            self._note_echo(collected.echoed, servo_id in collected.answers)
+            if servo_id not in collected.answers:
+                if collected.anomalies:
+                    self.mark_dirty()
+                return None
+            return max(0.0, came_s - due_s)
 
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping (2.0 only)."""

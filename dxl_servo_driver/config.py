@@ -95,7 +95,10 @@ PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('autostart', bool, True, 'Configure and activate at start (lifecycle).'),
     ParamSpec('latency_timer', float, 16.0,
               'Latency timer of the USB adapter (16 ms is the Linux FTDI default; 1 ms with our '
-              'udev rule). Used for reply deadlines and the bus-rate report.', 'ms', 0.0, 255.0),
+              'udev rule). Used for reply deadlines and the bus-rate report. Checked at '
+              "configure: where Linux says the adapter's (a USB serial device), that one is "
+              'used; elsewhere replies that come later than it allows are timed and the timer '
+              'they imply is used; either with a warning.', 'ms', 0.0, 255.0),
     ParamSpec('ping_retries', int, 3,
               'Pings per servo at configure before it counts as missing; also the attempts of '
               'every other configure and service transaction.',

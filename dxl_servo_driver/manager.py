@@ -168,7 +168,7 @@ class Manager:
             self._ctx.log.info(
                 f'bus limit for {len(self.active_servos())} servos at {self.config.baud_rate} bps '
                 f'(return delay {self._ctx.link.io().return_delay_s * 1e6:.0f} us, latency timer '
-                f'{self.config.latency_timer:g} ms): {budget.rate_limit_hz:.0f} Hz '
+                f'{self.latency_timer_s * 1000.0:g} ms): {budget.rate_limit_hz:.0f} Hz '
                 f'({budget.bytes_per_cycle} bytes per cycle: {_transactions(budget)})')
             if budget.rate_limit_hz < self.config.loop_rate:
                 self._ctx.log.warn(
@@ -188,10 +188,15 @@ class Manager:
         plan = self._cycle.wire_plan()
         if not plan:   # nobody to read: what one servo would cost
             return state_block.bus_budget(1, self.config.baud_rate, rdt_raw,
-                                          self.config.latency_timer / 1000.0,
-                                          fast=self._cycle.fast)
+                                          self.latency_timer_s, fast=self._cycle.fast)
         return state_block.plan_budget(plan, self.config.baud_rate, rdt_raw,
-                                       self.config.latency_timer / 1000.0)
+                                       self.latency_timer_s)
+
+    @property
+    def latency_timer_s(self) -> float:
+        """Return the adapter's latency timer in force (the file's, or the adapter's real one)."""
+        bus = self._ctx.link.bus
+        return bus.latency_timer_s if bus is not None else self.config.latency_timer / 1000.0
 
     @property
     def read_mode_in_use(self) -> str:

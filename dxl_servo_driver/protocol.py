@@ -470,6 +470,7 @@ class Framer(Protocol):
     status_overhead: int        # bytes of a status packet around its parameters
     refusal_mask: int           # error byte bits that say the instruction was refused
     alert_mask: int             # error byte bits that report a hardware error (not a refusal)
+    ping_reply_params: int      # parameters of a ping's answer (2.0: model number, firmware)
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -486,6 +487,7 @@ class Protocol2Framer:
     status_overhead = STATUS_OVERHEAD
     refusal_mask = ERROR_CODE_MASK
     alert_mask = ALERT_BIT
+    ping_reply_params = 3
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""

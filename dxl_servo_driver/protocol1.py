@@ -221,6 +221,7 @@ class Protocol1Framer:
     status_overhead = STATUS_OVERHEAD
     refusal_mask = int(REFUSAL_MASK)
     alert_mask = int(ALERT_MASK)
+    ping_reply_params = 0       # a 1.0 ping's status carries nothing: the model is read
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""

@@ -33,7 +33,7 @@ from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.protocol import MAX_ID, RETURN_DELAY_UNIT_S
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
 
 EXIT_OK = 0
 EXIT_NOT_FOUND = 1
@@ -54,7 +54,6 @@ DEFAULT_PROTOCOL_TIMEOUT_MS = 50.0
 # The largest Return Delay Time a servo can have: 254 x 2 us.
 MAX_RETURN_DELAY_S = 254 * RETURN_DELAY_UNIT_S
 READ_ATTEMPTS = 3
-SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
 LINUX_LATENCY_TIMER_MS = 16.0   # what an FTDI adapter's latency timer is unless set
 HINT = ('Usual causes: the servos have no power (the LED blinks once at power-up); they use a '
         'baud rate not tried (--baud), an id not tried (--ids) or a protocol not tried '
@@ -434,16 +433,6 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
             lines.append(f'      ratio: {params[joint + ".ratio"]!r}  # joint units per servo '
                          'radian (a 1:3 gearbox: 0.333...)')
     return '\n'.join(lines) + '\n'
-
-
-def adapter_latency_timer_ms(device: str) -> Optional[float]:
-    """Return the USB serial adapter's latency timer in ms (Linux sysfs), None if unknown."""
-    name = os.path.basename(os.path.realpath(device))
-    try:
-        with open(SYSFS_LATENCY.format(name=name), encoding='ascii') as stream:
-            return float(stream.read().strip())
-    except (OSError, ValueError):
-        return None
 
 
 class _UsageError(Exception):

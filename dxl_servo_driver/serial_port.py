@@ -18,7 +18,7 @@ import select
 import struct
 import termios
 import time
-from typing import Callable, Protocol, TypeVar
+from typing import Callable, Optional, Protocol, TypeVar
 
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.models import xm430
@@ -26,7 +26,19 @@ from dxl_servo_driver.termios2 import set_tty_speed
 import serial
 
 WRITE_BLOCKED_S = 1.0   # a write that finds no room in the driver's buffer this long fails
+# Where Linux says a USB serial adapter's latency timer (FTDI: 16 ms unless a udev rule sets it).
+SYSFS_LATENCY = '/sys/bus/usb-serial/devices/{name}/latency_timer'
 T = TypeVar('T')
+
+
+def adapter_latency_timer_ms(device: str) -> Optional[float]:
+    """Return the USB serial adapter's latency timer in ms (Linux sysfs), None if unknown."""
+    name = os.path.basename(os.path.realpath(device))
+    try:
+        with open(SYSFS_LATENCY.format(name=name), encoding='ascii') as stream:
+            return float(stream.read().strip())
+    except (OSError, ValueError):
+        return None
 
 
 class RawPort(Protocol):

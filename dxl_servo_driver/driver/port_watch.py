@@ -45,7 +45,11 @@ class PortWatch:
             self.port = self.transport.open_port()
         except PortError as exc:
             raise ManagerError(str(exc)) from None
-        bus = Bus(self.port, config.baud_rate, latency_timer_s=config.latency_timer / 1000.0,
+        # A reconnection keeps the latency timer configure found (driver/adapter.py).
+        before = self._ctx.link.bus
+        latency_s = (before.latency_timer_s if before is not None
+                     else config.latency_timer / 1000.0)
+        bus = Bus(self.port, config.baud_rate, latency_timer_s=latency_s,
                   framer=FRAMERS[config.protocol])
         for servo in self._ctx.roster.order:
             bus.speak(servo.servo_id, FRAMERS[servo.joint.protocol])

@@ -14,6 +14,7 @@ from typing import Any, Dict, Generator, List, Optional
 from dxl_servo_driver import models
 from dxl_servo_driver import state_block
 from dxl_servo_driver.config import check_joint_against
+from dxl_servo_driver.driver.adapter import settle_latency_timer
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Servo
 from dxl_servo_driver.errors import (
@@ -41,6 +42,7 @@ class Setup:
     # configure ------------------------------------------------------------------------------
     def configure(self) -> None:
         """Find and verify every servo, apply its configuration, learn the return delay."""
+        settle_latency_timer(self._ctx, self._roster.order)
         self._find_servos()
         for servo in self._roster.order:
             if servo.online:

@@ -1,0 +1,89 @@
+"""
+An adapter whose latency timer is not the file's: the node finds out, says so, and runs.
+
+The most common Dynamixel set-up mistake: an FTDI adapter without the udev rule (Linux's default
+latency timer, 16 ms) and a parameter file saying `latency_timer: 1.0`. Every reply came ~15 ms
+after its deadline and the node refused to start ("servo id 1 did not answer 3 pings"). Here the
+installed node runs against `virtual_bus --timing wire --latency-ms 16` on a pty (no sysfs file
+says a pty's timer, so the node must time the replies), and against the bus layer directly for
+the measurement itself.
+"""
+
+import pathlib
+import re
+from typing import Optional
+
+from dxl_servo_driver import serial_port
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.serial_port import open_port
+from node_harness import Client, NodeHarness, sim_params
+from processes import NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess
+import pytest
+
+JOINTS = {name: {'id': index + 1, 'operating_mode': 'position'}
+          for index, name in enumerate(('a', 'b', 'c'))}
+
+
+def test_a_16_ms_adapter_behind_a_file_saying_1_ms_starts_and_says_why(
+        workdir: pathlib.Path, client: Client, domain_id: int) -> None:
+    link = str(workdir / 'ttyDXL')
+    bus = VirtualBusProcess(ids=(1, 2, 3), baud_bps=1000000, link=link,
+                            extra_args=['--timing', 'wire', '--latency-ms', '16'])
+    node: Optional[NodeProcess] = None
+    try:
+        node = NodeProcess(workdir, params_yaml(link, JOINTS, loop_rate=100.0,
+                                                latency_timer=1.0), domain_id=domain_id)
+        node.wait_message(client.joint_states, lambda m: len(m.name) == 3, START_TIMEOUT_S)
+        output = node.output()
+        said = re.search(r'replies arrive ~(\d+) ms late .* the adapter\'s latency timer is '
+                         r'probably (\d+) ms; install the udev rule .* or set latency_timer: '
+                         r'(\d+)', output)
+        assert said, output
+        late, probably, advised = (int(group) for group in said.groups())
+        assert 14 <= late <= 17 and 16 <= probably <= 17 and advised == probably, said.group(0)
+        # The rate the adapter allows: the budget counts the timer found, and loop_rate above it
+        # is said, not refused.
+        budget = re.search(r'latency timer (\d+) ms\): (\d+) Hz', output)
+        assert budget and int(budget.group(1)) == probably, output
+        assert int(budget.group(2)) < 100 and 'running as fast as the bus allows' in output
+        # It drives the servos like any other bus.
+        client.publish('position', ['b'], [0.4])
+        node.wait_message(client.joint_states, lambda m: abs(m.position[1] - 0.4) < 0.05, 20.0)
+        assert node.stop() == 0, node.output()
+    finally:
+        if node is not None:
+            node.stop()
+        bus.stop()
+
+
+@pytest.mark.parametrize('latency_ms', [0.0, 16.0])
+def test_reply_delay_measures_the_adapter(workdir: pathlib.Path, latency_ms: float) -> None:
+    link = str(workdir / 'ttyDXL')
+    virtual = VirtualBusProcess(ids=(4,), baud_bps=1000000, link=link,
+                                extra_args=['--timing', 'wire', '--latency-ms', f'{latency_ms:g}'])
+    port = open_port(link, 1000000)
+    try:
+        bus = Bus(port, 1000000, latency_timer_s=0.001)
+        delays = [bus.reply_delay(4) for _ in range(3)]
+        assert all(delay is not None for delay in delays), delays
+        # The servo's Return Delay Time (500 us from the factory) and the host's wake-up on top.
+        assert all(latency_ms / 1000 <= delay < latency_ms / 1000 + 0.004
+                   for delay in delays if delay is not None), delays
+        assert bus.reply_delay(9, listen_s=0.05) is None   # nobody there
+    finally:
+        port.close()
+        virtual.stop()
+
+
+def test_the_timer_linux_says_wins_over_the_files(workdir: pathlib.Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    # A USB serial device's timer as sysfs gives it, here for the port named `sim`.
+    (workdir / 'sim').mkdir()
+    (workdir / 'sim' / 'latency_timer').write_text('16\n')
+    monkeypatch.setattr(serial_port, 'SYSFS_LATENCY', str(workdir / '{name}' / 'latency_timer'))
+    with NodeHarness(sim_params(JOINTS, latency_timer=1.0)) as h:
+        h.joint_states.wait(lambda m: len(m.name) == 3)
+        assert h.node is not None
+        assert h.node.manager.latency_timer_s == pytest.approx(0.016)
+        # The budget counts it: three servos at 1 Mbps cannot be read 100 times a second.
+        assert h.node.manager.bus_budget().rate_limit_hz < 60.0
