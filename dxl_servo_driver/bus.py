@@ -60,7 +60,7 @@ from dxl_servo_driver.protocol import (
     ALERT_BIT, BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, crc16, ERROR_CODE_MASK, ErrorCode,
     FAST_HEAD_SIZE, FAST_PART_OVERHEAD, fast_status_head, fast_status_size, fast_sync_head,
     fast_sync_size, Frame, Framer, HEADER, Instruction, MAX_ID, parse_fast_status, PROTOCOL_2,
-    STATUS_OVERHEAD)
+    RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
 from dxl_servo_driver.protocol1 import (
     error_text as error_text_1, Instruction1, MAX_ADDRESS as MAX_ADDRESS_1,
     MAX_PARAMS as MAX_PARAMS_1, PROTOCOL_1)
@@ -95,6 +95,10 @@ READ_TAGS = 8
 # A confirmed read tries this many times more to get two equal answers in a row.
 CONFIRM_ATTEMPTS = 3
 PING_REPLY_PARAMS = 3          # model number (2), firmware version (1)
+# A ping sweep (Bus.ping_sweep) sends each ping once the one before could have been answered on
+# the wire (request, the longest Return Delay Time, answer) and this margin more: the USB
+# adapter's transmit jitter, so that a ping never goes out over the answer before it.
+SWEEP_MARGIN_S = 1e-3
 # How long past its wire time Bus.reply_delay listens for a ping's answer: longer than any
 # adapter's latency timer in use (Linux's FTDI default is 16 ms, its maximum 255 ms).
 LATENCY_LISTEN_S = 0.3
@@ -314,6 +318,16 @@ class Collected:
         return bool(self.discarded or self.noise or self.corrupt or self.leftover)
 
 
+@dataclass
+class Sweep:
+    """What a ping sweep heard (Bus.ping_sweep)."""
+
+    answered: List[int] = field(default_factory=list)   # ids whose answer came whole
+    garbled: List[int] = field(default_factory=list)    # ids whose answer failed its checksum
+    noise: int = 0          # frames or bytes that were nobody's: a collision, a noisy line
+    echoed: int = 0         # pings the adapter echoed
+
+
 @dataclass(eq=False)
 class SyncRead:
     """
@@ -399,6 +413,48 @@ class SyncRead:
 
 
 Method = TypeVar('Method', bound=Callable[..., Any])
+
+
+def sweep_spacing_s(baud_bps: int, framer: Framer) -> float:
+    """Return the time between two pings of a sweep (Bus.ping_sweep) at a baud rate."""
+    ping = len(framer.encode(MAX_ID, Instruction.PING))
+    answer = framer.status_overhead + framer.ping_reply_params
+    return (ping + answer) * BITS_PER_BYTE / baud_bps + 254 * RETURN_DELAY_UNIT_S + SWEEP_MARGIN_S
+
+
+def broadcast_ping_s(baud_bps: int) -> float:
+    """Return how long a broadcast ping waits beyond the latency timer (Bus.broadcast_ping)."""
+    answer = STATUS_OVERHEAD + PING_REPLY_PARAMS
+    ping = len(PROTOCOL_2.encode(BROADCAST_ID, Instruction.PING))
+    return ((ping + answer * (MAX_ID + 1)) * BITS_PER_BYTE / baud_bps
+            + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
+
+
+def _heard(frames: Sequence[Frame], requests: Dict[int, Request], leftover: int) -> Sweep:
+    """Sort a ping sweep's frames into answers, garbled answers and noise."""
+    sweep = Sweep(noise=leftover)
+    echoes: Dict[int, int] = {}
+    for frame in frames:
+        request = requests.get(frame.servo_id)
+        kind = request.classify(frame) if request is not None else STRAY
+        if kind == ECHO and echoes.get(frame.servo_id) and frame.is_status:
+            # Protocol 1.0: an answer may be our ping byte for byte; the echo comes first.
+            kind = request.classify_status(frame) if request is not None else STRAY
+        if kind == ANSWER:
+            sweep.answered.append(frame.servo_id)
+        elif kind == ECHO:
+            echoes[frame.servo_id] = echoes.get(frame.servo_id, 0) + 1
+        elif kind == CORRUPT:
+            sweep.garbled.append(frame.servo_id)
+        else:
+            sweep.noise += 1
+    sweep.echoed = len(echoes)
+    if sweep.echoed <= len(requests) // 2:
+        # The adapter does not echo: a lone copy of a ping is its servo's answer.
+        sweep.answered += [servo_id for servo_id in echoes if servo_id not in sweep.answered]
+    sweep.answered = sorted(set(sweep.answered))
+    sweep.garbled = sorted(set(sweep.garbled) - set(sweep.answered))
+    return sweep
 
 
 def _to_servo(method: Method) -> Method:
@@ -826,18 +882,55 @@ class Bus:
                 return None
             return max(0.0, came_s - due_s)
 
+    def ping_sweep(self, ids: Sequence[int], framer: Framer) -> Sweep:
+        """
+        Ping every id in turn without waiting for each answer; return who answered.
+
+        Each ping goes out once the one before could have been answered on the wire, and the
+        answers are read once, after the last: a sweep of 253 ids waits the adapter's latency
+        timer once, not 253 times (Protocol 1.0 has no broadcast ping). What it finds are
+        candidates: the caller pings each again alone. Noise says the sweep cannot be trusted
+        (answers collided), and the caller then pings every id alone.
+        """
+        reply_size = framer.status_overhead + framer.ping_reply_params
+        requests = {servo_id: Request(framer.encode(servo_id, Instruction.PING), (servo_id,),
+                                      framer.ping_reply_params, refusal_mask=framer.refusal_mask)
+                    for servo_id in ids}
+        longest = max((len(request.packet) for request in requests.values()), default=0)
+        spacing_s = sweep_spacing_s(self.baud_bps, framer)
+        buffer = bytearray()
+        with self.speaking(framer):
+            self._flush()
+            due_s = time.monotonic()
+            for request in requests.values():
+                wait_s = due_s - time.monotonic()
+                if wait_s > 0.0:
+                    time.sleep(wait_s)
+                try:
+                    self.port.write(request.packet)
+                    waiting = self.port.in_waiting
+                    if waiting:
+                        buffer += self.port.read(waiting, 0.0)
+                except OSError as exc:
+                    raise _port_lost(exc) from None
+                due_s = time.monotonic() + spacing_s
+            deadline = due_s + self.latency_timer_s + self.slack_s
+            buffer += self._read(len(requests) * (longest + reply_size), deadline,
+                                 to_deadline=True)
+            frames, end = framer.scan(
+                buffer, 0, max(2 * (framer.ping_reply_params + 4) + 8, longest), True)
+        return _heard(frames, requests, len(buffer) - end)
+
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping (2.0 only)."""
         self._refuse_on_1('broadcast ping', 'ping the ids one by one')
         request = Request(self.framer.encode(BROADCAST_ID, Instruction.PING),
                           tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS)
-        reply_size = self.framer.status_overhead + PING_REPLY_PARAMS
         with self.lock:
             _, written_s = self._send(request.packet)
             # Every id may answer: the replies are read to the deadline.
-            deadline = (written_s + self.reply_timeout_s(reply_size * (MAX_ID + 1), 0,
-                                                         len(request.packet))
-                        + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
+            deadline = (written_s + broadcast_ping_s(self.baud_bps) + self.latency_timer_s
+                        + self.slack_s)
             collected = self._collect(request, deadline, bytearray(), True, lambda found: False)
             self._note_echo(collected.echoed, bool(collected.answers))
         return {servo_id: data[0] | (data[1] << 8)

@@ -2,11 +2,13 @@
 `scan`: find the Dynamixel servos on a serial port, at every baud rate, and describe them.
 
   scan --port /dev/ttyUSB0 [--baud B ...] [--ids ID ...] [--protocol 1.0|2.0|both]
-       [--output FILE] [--protocol-timeout-ms MS]
+       [--stop-at-first] [--output FILE] [--protocol-timeout-ms MS]
 
 At each baud rate (by default every one some supported model takes, the most common first) it
 looks for servos in both protocols: a Protocol 2.0 broadcast PING (or, with --ids, those ids one
-by one), then a Protocol 1.0 PING of every id (1.0 has no broadcast ping; --ids narrows it), and
+by one), then a Protocol 1.0 sweep of every id (1.0 has no broadcast ping: the pings go out back
+to back and the answers are read at the end, the adapter's latency waited once a sweep; --ids
+narrows it), and
 reads each servo's firmware version, operating mode and hardware error status in the protocol it
 answered in. Progress goes to stderr; stdout gets one line per servo found, saying its protocol.
 With --output it writes a parameter file the driver node runs as it is (a joint on the other
@@ -23,11 +25,14 @@ from dataclasses import dataclass
 import datetime
 import os
 import sys
-from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Set, TextIO, Tuple
+from typing import (
+    Any, Callable, Collection, Dict, List, NoReturn, Optional, Sequence, Set, TextIO, Tuple)
 
 from dxl_servo_driver import config
 from dxl_servo_driver import models
-from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver import timerslack
+from dxl_servo_driver.bus import (
+    broadcast_ping_s, Bus, DEADLINE_SLACK_S, FRAMERS, sweep_spacing_s)
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import TORQUE_MODE
@@ -234,44 +239,93 @@ def set_baud(bus: Bus, baud_bps: int) -> None:
     bus.set_baud(baud_bps)
 
 
-def _sweep_1(bus: Bus, ids: Sequence[int], sweep_s: float, warnings: List[str]
-             ) -> Dict[int, int]:
-    """Ping ids in Protocol 1.0, each with a short deadline; return {id: model number}."""
+def _sweep(bus: Bus, ids: Sequence[int], protocol: float, sweep_s: float,
+           warnings: List[str], progress: Callable[[str], None]) -> Dict[int, int]:
+    """
+    Find the servos among ids that answer in a protocol; return {id: model number}.
+
+    One ping sweep (Bus.ping_sweep: the adapter's latency waited once, not once per id) names
+    the candidates, each then pinged alone, which reads its model number. Where the sweep heard
+    noise (answers that collided, a noisy line) every id is pinged alone instead.
+    """
+    framer = FRAMERS[protocol]
+    sweep = bus.ping_sweep(ids, framer)
+    if sweep.noise:
+        progress(f'  {bus.baud_bps} bps: {sweep.noise} unreadable frame(s) in the Protocol '
+                 f'{protocol:.1f} sweep; pinging each id alone ...')
+        candidates = list(ids)
+    else:
+        candidates = sweep.answered + sweep.garbled
     found: Dict[int, int] = {}
     waited = bus.latency_timer_s
     bus.latency_timer_s = min(waited, sweep_s)
     try:
-        for servo_id in ids:
-            bus.speak(servo_id, FRAMERS[1.0])
+        for servo_id in candidates:
+            bus.speak(servo_id, framer)
             try:
                 found[servo_id] = bus.ping(servo_id, probe=True)
             except CorruptReply:
-                warnings.append(f'id {servo_id} at {bus.baud_bps} bps (Protocol 1.0): garbled '
-                                'replies (two servos with the same id, or a noisy line?)')
+                warnings.append(f'id {servo_id} at {bus.baud_bps} bps (Protocol {protocol:.1f}): '
+                                'garbled replies (two servos with the same id, or a noisy line?)')
             except CommError:
                 pass
-            if servo_id not in found:
+            if servo_id not in found or protocol != 1.0:
                 bus.speak(servo_id, FRAMERS[2.0])
     finally:
         bus.latency_timer_s = waited
     return found
 
 
+def sweep_faster(baud_bps: int) -> bool:
+    """Return whether a Protocol 2.0 ping sweep of every id beats a broadcast ping here."""
+    return (MAX_ID + 1) * sweep_spacing_s(baud_bps, FRAMERS[2.0]) < broadcast_ping_s(baud_bps)
+
+
+def protocol_1_bauds() -> List[int]:
+    """Return the baud rates of the models that speak Protocol 1.0 out of the box."""
+    return sorted({bps for model in models.ALL_MODELS if model.protocol == 1.0
+                   for bps in model.bauds.values()})
+
+
+def estimate_s(bauds: Sequence[int], ids: Optional[Sequence[int]], protocols: Sequence[float],
+               latency_s: float, bauds_1: Optional[Collection[int]] = None) -> float:
+    """Return about how long a scan of these bauds takes on a bus where nobody answers."""
+    total = 0.0
+    count = MAX_ID + 1 if ids is None else len(ids)
+    for baud_bps in bauds:
+        if 2.0 in protocols:
+            if ids is not None:
+                total += count * (21 * 10.0 / baud_bps + latency_s + DEADLINE_SLACK_S)
+            elif sweep_faster(baud_bps):
+                total += count * sweep_spacing_s(baud_bps, FRAMERS[2.0]) + latency_s
+            else:
+                total += broadcast_ping_s(baud_bps) + latency_s + DEADLINE_SLACK_S
+        if 1.0 in protocols and (bauds_1 is None or baud_bps in bauds_1):
+            total += count * sweep_spacing_s(baud_bps, FRAMERS[1.0]) + latency_s
+    return total
+
+
 def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None,
              progress: Callable[[str], None] = lambda line: None,
              found_one: Callable[[FoundServo], None] = lambda servo: None,
-             protocols: Sequence[float] = (2.0,), sweep_s: float = 0.02) -> ScanResult:
+             protocols: Sequence[float] = (2.0,), sweep_s: float = 0.02,
+             stop_at_first: bool = False,
+             bauds_1: Optional[Collection[int]] = None) -> ScanResult:
     """
     Look for servos at each baud rate in turn, in each protocol; return what answered.
 
     Protocol 2.0: without ids a broadcast PING finds them (when its replies are garbled, every id
     is pinged one by one instead); with ids only those are pinged. Protocol 1.0 has no broadcast
-    ping: every id (or those given) is pinged, each waiting sweep_s beyond its wire time.
-    progress gets one line per step, found_one each servo as soon as it has been read.
-    PortError propagates.
+    ping: one sweep pings every id (or those given) and each that answered is pinged again
+    alone, waiting sweep_s beyond its wire time; so does Protocol 2.0 at the bauds where such a
+    sweep is faster than a broadcast ping. bauds_1: where to look for Protocol 1.0 servos (None:
+    every baud). progress gets one line per step, found_one each servo as soon as it has been
+    read. stop_at_first: no baud after the first where servos answered. PortError propagates.
     """
     result = ScanResult([], [], [])
     for baud_bps in bauds:
+        if stop_at_first and result.servos:
+            break
         if 2.0 not in protocols:
             try:
                 set_baud(bus, baud_bps)
@@ -281,7 +335,9 @@ def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None
             result.bauds_tried.append(baud_bps)
             _scan_1(bus, baud_bps, ids, sweep_s, result, progress, found_one)
             continue
-        how = 'broadcast ping' if ids is None else f'ping of {len(ids)} id(s)'
+        sweep = ids is None and sweep_faster(baud_bps)
+        how = ('ping sweep of every id' if sweep else 'broadcast ping' if ids is None
+               else f'ping of {len(ids)} id(s)')
         progress(f'scanning {baud_bps} bps ({how}) ...')
         try:
             set_baud(bus, baud_bps)
@@ -289,7 +345,9 @@ def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None
             result.warnings.append(f'the adapter refused {baud_bps} bps ({exc}); skipped')
             continue
         result.bauds_tried.append(baud_bps)
-        if ids is None:
+        if sweep:
+            models = _sweep(bus, range(MAX_ID + 1), 2.0, sweep_s, result.warnings, progress)
+        elif ids is None:
             try:
                 models = bus.broadcast_ping()
             except CommError as exc:
@@ -302,7 +360,7 @@ def scan_bus(bus: Bus, bauds: Sequence[int], ids: Optional[Sequence[int]] = None
             servo = _describe_servo(bus, servo_id, models[servo_id], baud_bps)
             result.servos.append(servo)
             found_one(servo)
-        if 1.0 in protocols:
+        if 1.0 in protocols and (bauds_1 is None or baud_bps in bauds_1):
             _scan_1(bus, baud_bps, ids, sweep_s, result, progress, found_one)
     return result
 
@@ -313,7 +371,7 @@ def _scan_1(bus: Bus, baud_bps: int, ids: Optional[Sequence[int]], sweep_s: floa
     """Look for Protocol 1.0 servos at the bus's baud rate (scan_bus)."""
     asked = list(range(MAX_ID + 1)) if ids is None else list(ids)
     progress(f'scanning {baud_bps} bps, Protocol 1.0 (ping of {len(asked)} id(s)) ...')
-    found = _sweep_1(bus, asked, sweep_s, result.warnings)
+    found = _sweep(bus, asked, 1.0, sweep_s, result.warnings, progress)
     for servo_id in sorted(found):
         servo = _describe_servo(bus, servo_id, found[servo_id], baud_bps, 1.0)
         bus.speak(servo_id, FRAMERS[2.0])
@@ -457,6 +515,8 @@ def _parse_args(argv: Optional[Sequence[str]]) -> argparse.Namespace:
                         help=f'ping only these ids (0..{MAX_ID}) instead of a broadcast ping')
     parser.add_argument('--protocol', choices=tuple(PROTOCOLS), default='both',
                         help='the protocols to look for servos in (default both)')
+    parser.add_argument('--stop-at-first', action='store_true',
+                        help='stop after the first baud rate where servos answered')
     parser.add_argument('--output', metavar='FILE',
                         help='write a parameter file for the node with the servos found')
     parser.add_argument('--protocol-timeout-ms', type=float, default=DEFAULT_PROTOCOL_TIMEOUT_MS,
@@ -556,13 +616,26 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     def progress(line: str) -> None:
         print(line, file=err, flush=True)
 
+    # A sweep's pings are spaced by sleeps of a millisecond or two: ended on time, not late.
+    timerslack.fine_timer_slack()
+    asked = PROTOCOLS[args.protocol]
+    # Bauds asked for are searched in every protocol asked for; by default Protocol 1.0 only
+    # where a 1.0 model runs out of the box (an X servo switched to 1.0 at 4 Mbps: --baud).
+    bauds_1 = None if args.baud else protocol_1_bauds()
+    sweep_latency_ms = latency_ms if latency_ms is not None else LINUX_LATENCY_TIMER_MS
+    about_s = estimate_s(bauds, args.ids, asked, timeout_ms / 1000.0, bauds_1)
+    progress(f'scan: {_plural(len(bauds), "baud rate")}, Protocol '
+             f'{" and ".join(f"{p:.1f}" for p in asked)}: about {about_s:.0f} s where '
+             f'nobody answers{" (or until servos answer)" if args.stop_at_first else ""}; '
+             'Ctrl-C stops it')
+
     def found_one(servo: FoundServo) -> None:
         print(describe(servo), file=out, flush=True)
 
     try:
-        result = scan_bus(bus, bauds, args.ids, progress, found_one, PROTOCOLS[args.protocol],
-                          ((latency_ms if latency_ms is not None else LINUX_LATENCY_TIMER_MS)
-                           + SWEEP_SLACK_MS) / 1000.0)
+        result = scan_bus(bus, bauds, args.ids, progress, found_one, asked,
+                          (sweep_latency_ms + SWEEP_SLACK_MS) / 1000.0, args.stop_at_first,
+                          bauds_1)
     except PortError as exc:
         print(f'scan: error: {exc}', file=err)
         return EXIT_PORT

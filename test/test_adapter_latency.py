@@ -40,7 +40,9 @@ def test_a_16_ms_adapter_behind_a_file_saying_1_ms_starts_and_says_why(
                          r'(\d+)', output)
         assert said, output
         late, probably, advised = (int(group) for group in said.groups())
-        assert 14 <= late <= 17 and 16 <= probably <= 17 and advised == probably, said.group(0)
+        # No less than the adapter's 16 ms; more where the machine was slow to wake (a
+        # longer timer only makes the deadlines longer).
+        assert late >= 14 and probably >= 16 and advised == probably, said.group(0)
         # The rate the adapter allows: the budget counts the timer found, and loop_rate above it
         # is said, not refused.
         budget = re.search(r'latency timer (\d+) ms\): (\d+) Hz', output)
@@ -64,11 +66,13 @@ def test_reply_delay_measures_the_adapter(workdir: pathlib.Path, latency_ms: flo
     port = open_port(link, 1000000)
     try:
         bus = Bus(port, 1000000, latency_timer_s=0.001)
-        delays = [bus.reply_delay(4) for _ in range(3)]
+        delays = [bus.reply_delay(4) for _ in range(5)]
         assert all(delay is not None for delay in delays), delays
-        # The servo's Return Delay Time (500 us from the factory) and the host's wake-up on top.
-        assert all(latency_ms / 1000 <= delay < latency_ms / 1000 + 0.004
-                   for delay in delays if delay is not None), delays
+        # Never sooner than the adapter hands the answer over: the servo's Return Delay Time
+        # (500 us from the factory) and the host's wake-up come on top.
+        assert all(delay >= latency_ms / 1000 for delay in delays if delay is not None), delays
+        if latency_ms == 0.0:   # told from a 16 ms adapter, however loaded the machine
+            assert min(delay for delay in delays if delay is not None) < 0.008, delays
         assert bus.reply_delay(9, listen_s=0.05) is None   # nobody there
     finally:
         port.close()
