@@ -100,14 +100,18 @@ def stale_wheel_samples(messages: List[JointState], truth: Truth, after_s: float
     of an earlier reply is at least a cycle (10 ms, 0.03 rad at 3 rad/s, 20 pulses) older than
     its request. The upper end is wide because a frozen adapter holds the request itself (up
     to 60 ms here): the servo then samples later than the stamp, which is fresh, not stale.
-    3 pulses is the tolerance for sampling between steps.
+    3 pulses is the tolerance for sampling between steps. A sample whose window the truth does
+    not cover to its end is not judged: the sampler thread, starved on a loaded machine, may
+    have taken its last sample before the servo's (a fresh sample then looked ahead of truth).
     Returns (checked, stale); each stale sample is described in why (if given).
     """
     checked = stale = 0
+    known_until = truth.times[-1] if truth.times else 0.0
     for msg in messages:
         stamp = stamp_s(msg)
         position = position_of(msg, 'wheel')
-        if position is None or not after_s < stamp < before_s:
+        if (position is None or not after_s < stamp < before_s
+                or stamp + 0.1 > known_until):
             continue
         raw = round(position / RAD_PER_PULSE) + UNITS.zero_raw - turn_offset
         window = truth.between(stamp - 0.002, stamp + 0.1)
