@@ -184,7 +184,8 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               "joint's units are then m, m/s and N).", '', 1e-6, 1e6),
     ParamSpec('min_position', float, None,
               'The lowest position the joint is sent to (joint units): beyond is refused; in a '
-              "single-turn position mode written to the servo's Min/Max Position Limit.",
+              "single-turn position mode written to the servo's Min/Max Position Limit; in "
+              'velocity, current and PWM modes the joint is stopped there.',
               '', -1e6, 1e6, shown="the servo's limit"),
     ParamSpec('max_position', float, None, 'The highest position the joint is sent to (as '
               'min_position).', '', -1e6, 1e6, shown="the servo's limit"),

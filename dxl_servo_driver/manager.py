@@ -332,6 +332,7 @@ class Manager:
             try:
                 # The parts themselves: their public faces would take the lock held here again.
                 self._goals.check_timeout()
+                self._goals.check_ranges()
                 self.pairs.check()
                 self._cycle.write_pending()
                 self._recovery.recover_hardware_errors()
@@ -347,9 +348,10 @@ class Manager:
         return self._cycle.write_pending()
 
     def check_command_timeout(self) -> None:
-        """Velocity, current and pwm goals fall back to zero after command_timeout."""
+        """Velocity, current and pwm goals fall back to zero after command_timeout or at an end."""
         with self.lock:
             self._goals.check_timeout()
+            self._goals.check_ranges()
 
     def recover_hardware_errors(self) -> None:
         """With hardware_error_recovery: reboot a faulty servo alone, rate-limited, restored."""

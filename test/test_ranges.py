@@ -183,3 +183,63 @@ def test_the_range_is_shown_and_a_file_without_a_travel_is_refused(h: NodeHarnes
     params = sim_params({'claw': {**JOINTS['claw'], 'min_position': 1.5}})
     with pytest.raises(ConfigError, match="nothing of the gripper's travel"):
         validate(params)
+
+
+WHEELS: Dict[str, Dict[str, Any]] = {
+    # A wheel on a cable drum, say: velocity mode, yet it must not wind past its range.
+    'drum': {'id': 1, 'operating_mode': 'velocity', 'min_position': -0.5, 'max_position': 1.0},
+    # Reversed and in current mode: its goal's sign is the servo's, its range the joint's.
+    'arm': {'id': 2, 'operating_mode': 'current', 'reverse': True, 'min_position': -0.8,
+            'max_position': 0.6},
+}
+
+
+@pytest.fixture(scope='module')
+def wheels() -> Iterator[NodeHarness]:
+    with NodeHarness(sim_params(WHEELS, loop_rate=100.0)) as harness:
+        harness.joint_states.wait(lambda m: len(m.name) == len(WHEELS))
+        yield harness
+
+
+def joint_position(h: NodeHarness, name: str) -> float:
+    """Return where the joint is by its simulated servo's Present Position (joint frame)."""
+    assert h.node is not None
+    servo = h.node.manager.servos[name]
+    return servo.position_rad(h.reg(WHEELS[name]['id'], 'present_position'))
+
+
+@pytest.mark.parametrize('name, kind, value, end', [
+    ('drum', 'velocity', 2.0, 1.0), ('drum', 'velocity', -2.0, -0.5),
+    ('arm', 'current', -0.3, 0.6), ('arm', 'current', 0.3, -0.8)])
+def test_a_joint_in_a_non_position_mode_stops_at_its_end(wheels: NodeHarness, name: str,
+                                                         kind: str, value: float,
+                                                         end: float) -> None:
+    """
+    Velocity, current and PWM goals have no position limit in the servo: the driver stops them.
+
+    The goal toward the end goes to zero at the end (or two cycles before it at the present
+    velocity); a new goal toward it is held at zero, one away from it is taken.
+    """
+    h = wheels
+    servo_id = WHEELS[name]['id']
+    register = f'goal_{kind}'
+    assert h.call(f'set_{kind}', name=[name], value=[value]).success
+    h.wait_reg(servo_id, register, lambda raw: raw != 0)
+    # Stopped: the goal zeroed by the driver, the joint at rest near its end.
+    h.wait_reg(servo_id, register, lambda raw: raw == 0, timeout_s=15.0)
+    h.joint_states.wait(lambda m: abs(m.velocity[m.name.index(name)]) < 0.05, timeout_s=10.0)
+    stopped = joint_position(h, name)
+    print(f'{name} {kind} {value:g}: stopped at {stopped:.3f} for the end {end:g}')
+    # What it moves in the cycles the stop takes to reach the wire and its deceleration: a
+    # few hundredths in velocity mode, about 0.1 rad for the unloaded horn at 0.3 A (on a
+    # loaded machine a late cycle adds to it); a joint never stopped would be turns away.
+    assert abs(stopped - end) < 0.5, (stopped, end)
+    # Toward the end again: held at zero; away from it: taken.
+    assert h.call(f'set_{kind}', name=[name], value=[value]).success
+    assert h.reg(servo_id, register) == 0
+    assert h.call(f'set_{kind}', name=[name], value=[-value / 4]).success
+    h.wait_reg(servo_id, register, lambda raw: raw != 0)
+    # Back inside the range, then it holds.
+    h.joint_states.wait(lambda m: abs(m.position[m.name.index(name)] - end) > 0.2,
+                        timeout_s=10.0)
+    assert h.call(f'set_{kind}', name=[name], value=[0.0]).success

@@ -14,14 +14,21 @@ are needed: the manager's lock, then this one.
 
 import math
 import threading
-from typing import Callable, Dict, List, Sequence, Tuple, TypeVar
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, TypeVar
 
 from dxl_servo_driver.driver.context import Context
-from dxl_servo_driver.driver.servo import clamp_position, Result, Servo, Throttle
+from dxl_servo_driver.driver.servo import (
+    clamp_position, IDX_POSITION, IDX_VELOCITY, Result, Servo, Throttle)
 from dxl_servo_driver.errors import BadRequest, Refused
 from dxl_servo_driver.models import modes
 
 Goal = Tuple[Servo, str, int]   # the servo, its goal register, the raw value
+# How far ahead, in cycles at its present velocity, check_ranges looks for a joint's end.
+LOOKAHEAD_CYCLES = 2.0
+# ... and for a joint driven by current or PWM, which must be braked, not merely given zero.
+TORQUE_LOOKAHEAD_CYCLES = 4.0
+# Slower than this (joint units per second), a joint braked at its end is at rest.
+REST_RAD_S = 0.05
 Pending = Dict[str, Dict[int, int]]   # register -> {servo id: raw goal}
 T = TypeVar('T')
 
@@ -39,6 +46,10 @@ class Goals:
         self._clock = ctx.clock
         self._warn = ctx.log.warn
         self._warn_throttled = Throttle(ctx.log.warn, clock=ctx.clock)
+        # The servos a configured range bounds (check_ranges), whatever mode they are in now;
+        # a joint's second servo judges the joint by its own reading.
+        self._ranged = tuple(servo for servo in ctx.roster.order
+                             if servo.joint.position_limits() != (None, None))
 
     def check(self, kind: str, names: Sequence[str], values: Sequence[float]) -> List[Goal]:
         """
@@ -109,7 +120,13 @@ class Goals:
             offset = target.turn_offset if kind == 'position' else 0
             raw = command.to_raw(value) - offset
             clamped = _clamp(target, command.register, raw)
-            if clamped != raw:
+            end = self._end_ahead(target, clamped) if kind != 'position' else None
+            if end is not None:
+                self._warn_throttled(
+                    f'end:{which}', f'joint {which!r} is at its {end}: a {kind} goal toward it '
+                    'is held at zero until it is back within its range')
+                clamped = 0
+            elif clamped != raw:
                 self._warn_throttled(
                     f'clamp:{which}:{kind}',
                     f'joint {which!r}: {kind} goal {value:g} {command.unit} clamped to '
@@ -149,6 +166,70 @@ class Goals:
                         self._warn(f'joint {servo.name!r}: no {servo.mode} command for '
                                    f'{timeout:g} s: goal set to zero')
                     servo.timed_out = True
+
+    def check_ranges(self) -> None:
+        """
+        Stop a joint driven by velocity, current or PWM at the ends of its range.
+
+        The servo keeps no position limit in those modes, so a joint with min_position or
+        max_position would turn past them on a goal that never ends: at an end, or about to
+        pass one before two more cycles at its present velocity, its goal toward that end is
+        set to zero (a current or PWM goal reversed first, as a brake, until the joint is at
+        rest); a new goal toward it is held at zero (check) until one away from it is taken.
+        """
+        if not self._ranged:
+            return
+        with self.lock:
+            for servo in self._ranged:
+                if (servo.mode in modes.POSITION_MODES or not servo.fresh or not servo.online
+                        or servo.state is None):
+                    continue
+                register = modes.BY_NAME[servo.mode].holding_register
+                goal = self._pending.get(register, {}).get(servo.servo_id,
+                                                           servo.goal_raw.get(register, 0))
+                if servo.at_end and servo.mode != 'velocity':
+                    # A zero current or PWM lets the joint coast on: it is braked with the
+                    # goal it was stopped with, reversed, until it is at rest.
+                    outward_rad_s = (servo.units.velocity_to_rad_s(servo.state[IDX_VELOCITY])
+                                     * servo.at_end)
+                    brake = -servo.end_goal_raw if outward_rad_s > REST_RAD_S else 0
+                    if goal != brake:
+                        self._queue(servo, register, brake)
+                    continue
+                end = self._end_ahead(servo, goal)
+                if end is not None:
+                    servo.end_goal_raw = goal
+                    self._queue(servo, register, 0 if servo.mode == 'velocity' else -goal)
+                    self._warn_throttled(
+                        f'end:{servo.name}', f'joint {servo.name!r} reached its {end} in '
+                        f'{servo.mode} mode: stopped there until a goal away from it')
+
+    def _end_ahead(self, servo: Servo, raw: int) -> Optional[str]:
+        """
+        Return the end (said) a goal drives the joint to, at or past it; None if none.
+
+        A joint stopped at an end stays there (Servo.at_end) until a goal away from it is
+        taken: it stopped a little short, and a goal toward the end must not creep it on.
+        """
+        low, high = servo.joint.position_limits()
+        if (low is None and high is None) or servo.state is None or raw == 0:
+            return None
+        # The goal's direction in the joint's frame: a reversed joint turns against the servo.
+        outward = 1 if raw * servo.units.frame.scale > 0 else -1
+        if servo.at_end and outward != servo.at_end:
+            servo.at_end = 0
+            return None
+        position = servo.position_rad(servo.state[IDX_POSITION])
+        cycles = LOOKAHEAD_CYCLES if servo.mode == 'velocity' else TORQUE_LOOKAHEAD_CYCLES
+        ahead = position + (servo.units.velocity_to_rad_s(servo.state[IDX_VELOCITY])
+                            * cycles / self._ctx.config.loop_rate)
+        if high is not None and outward > 0 and (servo.at_end > 0 or max(position, ahead) >= high):
+            servo.at_end = 1
+            return f'max_position {high:g}'
+        if low is not None and outward < 0 and (servo.at_end < 0 or min(position, ahead) <= low):
+            servo.at_end = -1
+            return f'min_position {low:g}'
+        return None
 
     def _queue(self, servo: Servo, register: str, value: int) -> None:
         # goal_raw is what was written: it changes when the writer takes the goal (a goal

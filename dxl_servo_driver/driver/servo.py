@@ -71,6 +71,10 @@ class Servo:
     slot_refused: bool = False      # a write through the slot did not read back: never again
     last_command_s: float = 0.0     # for command_timeout
     timed_out: bool = False
+    # Stopped at the end of its range in a velocity, current or PWM mode: +1 max_position,
+    # -1 min_position, 0 neither (goals.Goals.check_ranges).
+    at_end: int = 0
+    end_goal_raw: int = 0           # the goal it was stopped with (a brake reverses it)
     limits: Dict[str, int] = field(default_factory=dict)
     homing_offset: int = 0          # the servo's Homing Offset, as last read or written
     # Whole turns (pulses) the driver adds to Present Position and takes from position goals,
