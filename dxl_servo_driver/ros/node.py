@@ -176,7 +176,16 @@ class DriverNode(LifecycleNode):
 
     # lifecycle -----------------------------------------------------------------------------
     def _guard_change_state(self) -> None:
-        """Answer an impossible lifecycle request with success false, not a dead node."""
+        """
+        Answer an impossible lifecycle request with success false, not a dead node.
+
+        rclpy's LifecycleNode (Jazzy, rclpy 7.1) has no public hook for this: its change_state
+        service raises RCLError out of the executor for a transition the state does not have
+        (`ros2 lifecycle set` of activate twice), which ends the spin. So the service's callback
+        (`_service_change_state.callback`) is wrapped, and the state read from
+        `_state_machine.current_state` (private members, like _rclpy.RCLError);
+        test/test_rclpy_internals.py fails the day an rclpy release changes any of them.
+        """
         service = self._service_change_state
         original = service.callback
 
