@@ -65,3 +65,22 @@ def test_a_value_shown_from_the_servo_stays_the_servos_until_someone_sets_it() -
         assert h.node.config.joint('arm').torque_constant_nm_per_a == 1.5
         assert h.node.manager.servos['arm'].units.torque_constant_nm_per_a == 1.5
         assert h.node.get_parameter('arm.torque_constant').value == 1.5
+
+
+def test_every_runtime_parameter_has_a_change_hook_and_is_set_while_active() -> None:
+    """A runtime parameter without its hook once fell through to the diagnostics thresholds."""
+    with NodeHarness(sim_params(JOINTS)) as h:
+        assert h.node is not None
+        h.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
+        runtime = {spec.name for spec in PARAMS if spec.runtime}
+        assert set(h.node.runtime_hooks()) == runtime
+        for spec in PARAMS:
+            if not spec.runtime:
+                continue
+            value = h.node.get_parameter(spec.name).value
+            result = h.set_parameter(spec.name, value)
+            assert result.successful, (spec.name, result.reason)
+        assert h.set_parameter('state_rate', 5.0).successful
+        assert h.node.config.state_rate == 5.0
+        # A name the table does not have is refused while active (by rclpy: undeclared).
+        assert not h.set_parameter('no_such_parameter', 1.0).successful

@@ -9,9 +9,10 @@ service callbacks only queue goals or call the manager, whose lock keeps one tra
 bus at a time.
 """
 
+import functools
 import threading
 import time
-from typing import Any, Dict, List, Optional
+from typing import Any, Callable, Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
@@ -159,20 +160,36 @@ class DriverNode(LifecycleNode):
         for name, value in changes.items():
             # Kept in the configuration too: configure compares it with the parameters.
             self.config = cfg.replace(self.config, **{name: value})
-            if name == 'loop_rate':
-                self._runner.set_rate(value)
-            elif name == 'state_rate':
-                self._state_period_s = (1.0 / value) if value else 0.0
-                self._set_health_period()
-            elif name == 'command_timeout':
-                self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
-            elif name == 'goal_tolerance':
-                self.arm.trajectories.tolerance_rad = value
-            elif name in ('goal_time_tolerance', 'action_monitor_rate'):
-                pass   # read from self.config by each new trajectory or goal
-            else:
-                self._thresholds[name] = value
+            self.runtime_hooks()[name](value)
         return SetParametersResult(successful=True)
+
+    def runtime_hooks(self) -> Dict[str, Callable[[Any], None]]:
+        """
+        Return what a change of each runtime parameter does while the node runs.
+
+        One entry per `runtime=True` parameter of config.PARAMS (test_parameters checks that
+        none is missing): a new runtime parameter needs its hook here, or a set would fail.
+        """
+        def state_rate(value: float) -> None:
+            self._state_period_s = (1.0 / value) if value else 0.0
+            self._set_health_period()
+
+        def command_timeout(value: float) -> None:
+            self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
+
+        def goal_tolerance(value: float) -> None:
+            self.arm.trajectories.tolerance_rad = value
+
+        def read_from_config(value: Any) -> None:
+            pass   # each new trajectory or goal reads it from self.config
+
+        hooks: Dict[str, Callable[[Any], None]] = {
+            'loop_rate': self._runner.set_rate, 'state_rate': state_rate,
+            'command_timeout': command_timeout, 'goal_tolerance': goal_tolerance,
+            'goal_time_tolerance': read_from_config, 'action_monitor_rate': read_from_config}
+        for name in cfg.THRESHOLDS:   # the diagnostics' WARN/ERROR levels
+            hooks[name] = functools.partial(self._thresholds.__setitem__, name)
+        return hooks
 
     # lifecycle -----------------------------------------------------------------------------
     def _guard_change_state(self) -> None:
