@@ -5,7 +5,7 @@ Every family starts from the XM430 manual's layout (models.xm430.ITEMS) and stat
 differs, so the numbers the families share live in one place.
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Iterable, Mapping, TypeAlias
 
 from dxl_servo_driver.models.base import Item
@@ -31,6 +31,35 @@ def item(name: str, address: int, size: int, access: str, initial: int, minimum:
     area = 'eeprom' if address < eeprom_end else 'ram'
     return Item(name, address, size, area, access, initial, minimum, maximum, signed, limit,
                 unit, description, direction_bit, raw_zero)
+
+
+@dataclass(frozen=True)
+class ItemMaker:
+    """
+    How one family writes its items: where its RAM begins and its direction bit, said once.
+
+    Each family module makes one (`_item = ItemMaker(eeprom_end=512)`) and lists its items
+    with it in the manual's order of columns: name, address, size, access, initial, minimum,
+    maximum, then keywords. `direction=True` marks an item whose top bit is a sign (the older
+    tables' Present Speed); `area` states an item's area where the family does so item by
+    item (the Y) instead of by address.
+    """
+
+    eeprom_end: int = EEPROM_END
+    direction_bit: int = 0
+
+    def __call__(self, name: str, address: int, size: int, access: str, initial: int,
+                 minimum: int, maximum: int, *, signed: bool = False, limit: str | None = None,
+                 unit: str = '', description: str = '', direction: bool = False,
+                 raw_zero: int = 0, area: str | None = None) -> Item:
+        """Return the Item, its area from its address unless given."""
+        if direction and not self.direction_bit:
+            raise ValueError(f'{name}: this family has no direction bit')
+        made = item(name, address, size, access, initial, minimum, maximum, signed=signed,
+                    limit=limit, unit=unit, description=description,
+                    eeprom_end=self.eeprom_end,
+                    direction_bit=self.direction_bit if direction else 0, raw_zero=raw_zero)
+        return made if area is None else replace(made, area=area)
 
 
 def build(base: Iterable[Item], *, remove: Iterable[str] = (), add: Iterable[Item] = (),

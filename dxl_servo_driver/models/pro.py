@@ -18,11 +18,10 @@ item). Hardware Error Status bits: the e-manual refers to Shutdown, the X's bits
 """
 
 from dataclasses import dataclass, replace
-from typing import Any
 
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import datasheet, Item, Model, Physics
-from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, item
+from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, ItemMaker
 
 __all__ = ['GRIPPER', 'MODELS', 'P_MODELS', 'PRO_A_MODELS']
 
@@ -54,11 +53,7 @@ class _Figures:
     gains: tuple[int, int, int, int, int] = (2209, 6153, 0, 0, 314)  # vel I, P; pos D, I, P
 
 
-def _item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
-          maximum: int, **options: Any) -> Item:
-    # Any: the keyword options of layout.item, passed through.
-    return item(name, address, size, access, initial, minimum, maximum,
-                eeprom_end=EEPROM_END, **options)
+_item = ItemMaker(eeprom_end=EEPROM_END)
 
 
 def _items(number: int, f: _Figures, *, protocol_type: bool, startup: bool, drive_mode: bool,

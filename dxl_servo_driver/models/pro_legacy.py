@@ -73,7 +73,7 @@ from dataclasses import dataclass
 
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.base import datasheet, Item, Model
-from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, item
+from dxl_servo_driver.models.layout import indirect_items, indirect_pairs, ItemMaker
 
 __all__ = ['GRIPPER', 'L42', 'MODELS', 'PRO_MODELS']
 
@@ -120,11 +120,7 @@ class _Figures:
     acceleration_limit: int = 255
 
 
-def _item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
-          maximum: int, *, signed: bool = False, limit: str | None = None, unit: str = '',
-          description: str = '') -> Item:
-    return item(name, address, size, access, initial, minimum, maximum, signed=signed,
-                limit=limit, unit=unit, description=description, eeprom_end=EEPROM_END)
+_item = ItemMaker(eeprom_end=EEPROM_END)
 
 
 def _common(number: int, *, mode_initial: int, mode_max: int, moving_threshold: int,

@@ -54,7 +54,7 @@ from dataclasses import replace
 
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.base import datasheet, Item, Model, Physics
-from dxl_servo_driver.models.layout import item as _layout_item
+from dxl_servo_driver.models.layout import ItemMaker
 
 __all__ = ['MODELS']
 
@@ -98,13 +98,7 @@ JOINT_WHEEL_TURNS = modes.numbers('velocity', 'position', 'extended_position')
 WITH_TORQUE = modes.numbers('current', 'velocity', 'position', 'extended_position')
 
 
-def _item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
-          maximum: int, *, unit: str = '', description: str = '', limit: str | None = None,
-          signed: bool = False, direction: bool = False, raw_zero: int = 0) -> Item:
-    return _layout_item(name, address, size, access, initial, minimum, maximum, unit=unit,
-                        signed=signed, limit=limit, description=description,
-                        eeprom_end=EEPROM_END, direction_bit=DIRECTION if direction else 0,
-                        raw_zero=raw_zero)
+_item = ItemMaker(eeprom_end=EEPROM_END, direction_bit=DIRECTION)
 
 
 def _common(number: int, *, bauds: tuple[int, int, int], steps: int, temperature: tuple[int, int],

@@ -39,7 +39,7 @@ family's text that its own Shutdown table contradicts.
 """
 
 from dxl_servo_driver.models.base import datasheet, Item, Model
-from dxl_servo_driver.models.layout import item as _layout_item
+from dxl_servo_driver.models.layout import ItemMaker
 
 __all__ = ['MODEL', 'MODELS']
 
@@ -60,12 +60,7 @@ ROLES: dict[str, str] = {
 }
 
 
-def _item(name: str, address: int, size: int, access: str, initial: int, minimum: int,
-          maximum: int, *, unit: str = '', description: str = '', limit: str | None = None,
-          direction: bool = False) -> Item:
-    return _layout_item(name, address, size, access, initial, minimum, maximum, unit=unit,
-                        limit=limit, description=description, eeprom_end=EEPROM_END,
-                        direction_bit=DIRECTION if direction else 0)
+_item = ItemMaker(eeprom_end=EEPROM_END, direction_bit=DIRECTION)
 
 
 def _items() -> tuple[Item, ...]:

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.base import datasheet, Item, Model, Physics
-from dxl_servo_driver.models.layout import indirect_pairs
+from dxl_servo_driver.models.layout import indirect_pairs, ItemMaker
 
 __all__ = ['FAMILY', 'MODELS', 'ROLES']
 
@@ -108,11 +108,16 @@ class _Figures:
     physics: tuple[float, float, float]  # maximum torque N.m, maximum current A, no-load rpm
 
 
+_make = ItemMaker(eeprom_end=EEPROM_END)
+
+
 def _item(name: str, address: int, size: int, area: str, access: str, initial: int,
           minimum: int, maximum: int, unit: str = '', description: str = '', *,
           signed: bool = False, limit: str | None = None) -> Item:
-    return Item(name, address, size, area, access, initial, minimum, maximum, signed, limit,
-                unit, description)
+    # The Y's page states each item's area (some below 512 are RAM, some both: HYBRID) and
+    # gives unit and description as columns: its rows keep that order.
+    return _make(name, address, size, access, initial, minimum, maximum, signed=signed,
+                 limit=limit, unit=unit, description=description, area=area)
 
 
 def _s32(name: str, address: int, area: str, access: str, initial: int, unit: str,
