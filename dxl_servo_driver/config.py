@@ -334,6 +334,27 @@ class DriverConfig:
         raise KeyError(name)
 
 
+def _agrees_with_the_table() -> None:
+    """
+    Raise TypeError at import when DriverConfig's fields and PARAMS disagree.
+
+    PARAMS is the one home of a parameter; DriverConfig is written out field by field so that
+    type checkers and readers see each one's type (a class made from the table at run time
+    would be Any to mypy). validate() fills it from PARAMS alone, and this check makes a
+    parameter added to one and not the other fail at once, by name.
+    """
+    fields = [(f.name, f.type) for f in dataclasses.fields(DriverConfig) if f.name != 'joints']
+    # `joints`, a list of names in the table, is the joints themselves here.
+    table = [(spec.name, spec.kind.__name__) for spec in PARAMS if spec.name != 'joints']
+    written = [(name, kind if isinstance(kind, str) else kind.__name__) for name, kind in fields]
+    apart = sorted(set(table) ^ set(written))
+    if apart:
+        raise TypeError(f'DriverConfig and config.PARAMS disagree (name or type): {apart}')
+
+
+_agrees_with_the_table()
+
+
 def _check_type(key: str, value: Any, expected: type) -> Any:
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
