@@ -14,6 +14,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config/moveit', glob('config/moveit/*')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
         ('share/' + PACKAGE + '/udev', glob('udev/*.rules')),
     ],
@@ -21,7 +22,8 @@ setup(
     zip_safe=True,
     maintainer='dxl_servo_driver maintainers',
     maintainer_email='maintainers@dxl-servo-driver.org',
-    description='ROS 2 driver and byte-level simulator for Dynamixel X-series servos.',
+    description='ROS 2 driver and byte-level simulator for Dynamixel servos (every family, '
+                'Protocol 1.0 and 2.0).',
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={

@@ -1,1 +1,1 @@
-"""ROS 2 driver for Dynamixel X-series servos (Protocol 2.0) and its byte-level simulator."""
+"""ROS 2 driver for Dynamixel servos (every family, Protocol 1.0 and 2.0) and its simulator."""
