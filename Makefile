@@ -5,7 +5,7 @@ ENV := . tools/env.sh &&
 PARAMS ?= config/sim.yaml
 PYTEST_ARGS ?=
 
-.PHONY: setup run test fuzz bench bench-scale clean
+.PHONY: setup run test test-fast fuzz bench bench-scale clean
 
 setup:
 	@bash tools/setup_env.sh
@@ -15,6 +15,10 @@ run: setup
 
 test: setup
 	@$(ENV) python -m pytest $(PYTEST_ARGS)
+
+# The unit tier: the layers below the node, in this process (test/conftest.py marks the tiers).
+test-fast: setup
+	@$(ENV) python -m pytest -m "unit and not soak" $(PYTEST_ARGS)
 
 # The Hypothesis tests at random with 20 times the examples (test/conftest.py, profile fuzz).
 fuzz: setup

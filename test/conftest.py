@@ -44,8 +44,32 @@ settings.register_profile(
 settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 
 
+# The tiers (markers), from what a test starts: `unit` runs the layers in this process (no ROS
+# node, no subprocess: `make test-fast`), `node` starts the driver node in-process, `process`
+# starts virtual_bus or node processes on ptys, `lint` runs the linters.
+LINT_MODULES = frozenset({'test_flake8', 'test_pep257', 'test_mypy'})
+PROCESS_FIXTURES = frozenset({'virtual_bus', 'workdir', 'client', 'domain_id'})
+PROCESS_NAMES = frozenset({'VirtualBusProcess', 'NodeProcess', 'subprocess', 'pexpect'})
+NODE_NAMES = frozenset({'NodeHarness', 'rclpy', 'faulty_harness', 'startup_failure'})
+
+
+def tier(item: pytest.Item) -> str:
+    """Return the tier of a collected test: lint, process, node or unit."""
+    module = getattr(item, 'module', None)
+    names = set(vars(module)) if module is not None else set()
+    if module is not None and module.__name__ in LINT_MODULES:
+        return 'lint'
+    if PROCESS_FIXTURES & set(getattr(item, 'fixturenames', ())) or PROCESS_NAMES & names:
+        return 'process'
+    if NODE_NAMES & names:
+        return 'node'
+    return 'unit'
+
+
 def pytest_collection_modifyitems(items: List[pytest.Item]) -> None:
-    """Refuse a Hypothesis test whose own settings override the profile's randomness."""
+    """Mark each test with its tier; refuse a Hypothesis test that overrides the profile."""
+    for item in items:
+        item.add_marker(tier(item))
     profile = settings.default
     strays = []
     for item in items:
