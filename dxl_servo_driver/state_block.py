@@ -296,7 +296,7 @@ def state_block(model: Model, effort_register: str) -> StateBlock:
 
 # The goal slot: the indirect entries after the state block, mapped to the goal registers of
 # the servo's operating mode, so that one sync write at one address carries every joint's goals
-# whatever their modes (one sync write per cycle, README: Goals in one sync write).
+# whatever their modes (one sync write per cycle, docs/bus.md: goals in one sync write).
 GOAL_SLOT_SIZE = 6
 
 

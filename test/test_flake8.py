@@ -7,7 +7,7 @@ import sys
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-PATHS = ['dxl_servo_driver', 'test', 'tools', 'setup.py', 'bench', 'launch']
+PATHS = ['dxl_servo_driver', 'test', 'tools', 'setup.py', 'bench', 'launch', 'examples']
 
 
 @pytest.mark.flake8

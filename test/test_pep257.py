@@ -6,7 +6,7 @@ from ament_pep257.main import main
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-PATHS = ['dxl_servo_driver', 'test', 'tools', 'setup.py', 'bench', 'launch']
+PATHS = ['dxl_servo_driver', 'test', 'tools', 'setup.py', 'bench', 'launch', 'examples']
 
 
 @pytest.mark.linter

@@ -1,38 +1,59 @@
 """
-Every `ros2 topic pub`, `ros2 service call` and `ros2 param set` line of the README, replayed.
+Every command line of README.md and docs/, replayed against what `make run` runs.
 
-The lines are taken from the README as written and sent through rclpy, with the same YAML
-payloads, to a node running what `make run` runs (config/sim.yaml); each must be taken: a service
-answers success, a parameter is set, a command's goal reaches the servo's register.
+Every `ros2 topic pub`, `ros2 service call` and `ros2 param set` line is taken as written and
+sent through rclpy, with the same YAML payloads, to a node running config/sim.yaml; each must be
+taken: a service answers success, a parameter is set, a command's goal reaches the servo's
+register. Every `python examples/...` line is run as written against the installed node on
+config/sim.yaml (what `make run` starts), and every sample of `make run`'s log is compared with
+what that node prints.
 """
 
+import importlib.util
+import os
 import pathlib
+import re
 import shlex
-from typing import Any, Dict, List, Tuple
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Dict, Iterator, List, Tuple
 
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.ros.node import NODE_NAME
 from node_harness import NodeHarness
+from processes import fresh_domain_id, NodeProcess, START_TIMEOUT_S
 import pytest
 import yaml
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-README = (ROOT / 'README.md').read_text()
+# README.md and every page of docs/: the commands are wherever the reference put them.
+PAGES = [ROOT / 'README.md', *sorted((ROOT / 'docs').glob('*.md'))]
 PREFIX = f'/{NODE_NAME}/'
 GOAL_REGISTERS = modes.GOAL_REGISTERS
+EXAMPLE = ROOT / 'examples' / 'move_and_echo.py'
 
 
-def readme_lines() -> List[List[str]]:
+def code_blocks() -> List[str]:
+    """Return the code blocks of README.md and docs/, each from its tag line (```bash ...)."""
+    return [block for page in PAGES for block in page.read_text().split('```')[1::2]]
+
+
+def make_run_blocks() -> List[str]:
     """
-    Return the README's ros2 pub / call / param set lines that address the default node.
+    Return the code blocks about make run's node (config/sim.yaml, the root namespace).
 
     Code blocks that run the node on another file (a scanned robot.yaml, a namespace) are about
     that file's joints, not make run's: they are left out.
     """
+    return [block for block in code_blocks() if 'robot.yaml' not in block and '__ns' not in block]
+
+
+def readme_lines() -> List[List[str]]:
+    """Return the ros2 pub / call / param set lines of the docs that address the default node."""
     lines = []
-    blocks = README.split('```')[1::2]
-    for line in (line for block in blocks if 'robot.yaml' not in block and '__ns' not in block
-                 for line in block.splitlines()):
+    for line in (line for block in make_run_blocks() for line in block.splitlines()):
         text = line.strip()
         if not text.startswith(('ros2 topic pub', 'ros2 service call', 'ros2 param set')):
             continue
@@ -92,7 +113,7 @@ def h() -> Any:
 def test_the_readme_has_the_lines_to_replay() -> None:
     kinds = {tuple(words[1:3]) for words in readme_lines()}
     assert kinds == {('topic', 'pub'), ('service', 'call'), ('param', 'set')}
-    assert len(readme_lines()) >= 15
+    assert len(readme_lines()) >= 19   # all of the lines README.md held before docs/ existed
 
 
 def replay(h: NodeHarness, words: List[str]) -> Tuple[str, Any]:
@@ -157,3 +178,128 @@ def check_suggestions(h: NodeHarness) -> None:
         kinds.append(words[3])
         assert replay(h, words)[0] == 'topic'
     assert kinds == ['--once', '-r']
+
+
+# make run's node, as a process: its log and the example scripts. -----------------------------
+
+LOG_STAMP = re.compile(r'^\[(?P<level>[A-Z]+)\] \[\d+\.\d+\] ')
+# What varies from run to run in make run's log: the measured rate and the read counters. The
+# rest (the servos, the bus limit and its bytes, the suggestions) is what the code decides.
+VARYING = ((re.compile(r'measured loop rate \d+(\.\d+)? Hz'), 'measured loop rate <rate> Hz'),
+           (re.compile(r'\d+ read failures, \d+ retries'), '<n> read failures, <n> retries'))
+MEASURED = 'measured loop rate'
+EXAMPLE_TIMEOUT_S = 60.0
+
+
+def normalised(line: str) -> str:
+    """Return a log line without its time stamp and with what varies between runs masked."""
+    line = LOG_STAMP.sub(r'[\g<level>] ', line)
+    for pattern, replacement in VARYING:
+        line = pattern.sub(replacement, line)
+    return line
+
+
+def log_samples() -> List[List[str]]:
+    """Return the samples of make run's log in the docs: blocks of [INFO] lines, `...` kept."""
+    samples = []
+    for block in code_blocks():
+        lines = block.split('\n')[1:]   # after the tag line
+        if lines and lines[0].startswith(f'[INFO] [{NODE_NAME}]: '):
+            samples.append([line for line in lines if line.strip()])
+    return samples
+
+
+def example_lines() -> List[List[str]]:
+    """Return the `python examples/...` lines of make run's blocks, as words, each once."""
+    found: List[List[str]] = []
+    for line in (line for block in make_run_blocks() for line in block.splitlines()):
+        at = line.find('python examples/')
+        if at >= 0:
+            words = shlex.split(line[at:], comments=True)
+            if words not in found:
+                found.append(words)
+    return found
+
+
+def example_module() -> Any:
+    """Return examples/move_and_echo.py as a module (its parse_args reads a line's words)."""
+    spec = importlib.util.spec_from_file_location('move_and_echo', EXAMPLE)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class MakeRun:
+    """The installed node on config/sim.yaml in a DDS domain of its own: what `make run` runs."""
+
+    def __init__(self, workdir: pathlib.Path) -> None:
+        self.domain_id = fresh_domain_id()
+        self.node = NodeProcess(workdir, (ROOT / 'config' / 'sim.yaml').read_text(),
+                                domain_id=self.domain_id)
+
+    def wait_for(self, text: str, timeout_s: float) -> None:
+        """Wait until the node has printed text (AssertionError with its output if it exits)."""
+        deadline = time.monotonic() + timeout_s
+        while text not in self.node.output():
+            self.node.alive()
+            assert time.monotonic() < deadline, (
+                f'make run did not print {text!r} within {timeout_s} s:\n{self.node.output()}')
+            time.sleep(0.1)
+
+    def env(self) -> Dict[str, str]:
+        """Return the environment of a client of this node."""
+        return dict(os.environ, ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED='1')
+
+
+@pytest.fixture(scope='module')
+def make_run() -> Iterator[MakeRun]:
+    with tempfile.TemporaryDirectory(prefix='dxl_test_') as path:
+        run = MakeRun(pathlib.Path(path))
+        try:
+            run.wait_for(MEASURED, START_TIMEOUT_S + 10.0)
+            yield run
+            run.node.alive()
+        finally:
+            code = run.node.stop()
+        assert code == 0, run.node.output()
+
+
+def test_the_docs_show_what_make_run_prints() -> None:
+    assert len(log_samples()) >= 1
+    assert any(MEASURED in line for sample in log_samples() for line in sample)
+    assert example_lines(), 'no `python examples/...` line to run'
+
+
+@pytest.mark.parametrize('index', range(len(log_samples())))
+def test_each_log_sample_is_what_make_run_prints(make_run: MakeRun, index: int) -> None:
+    """The sample's lines are printed in its order; `...` stands for lines left out."""
+    printed = [normalised(line) for line in make_run.node.output().splitlines()]
+    at = 0
+    for line in log_samples()[index]:
+        if line.strip() == '...':
+            continue
+        want = normalised(line)
+        assert want in printed[at:], (
+            f'{line!r} is not what make run prints (after the lines before it); it printed:\n'
+            + '\n'.join(printed))
+        at = printed.index(want, at) + 1
+
+
+@pytest.mark.parametrize('index', range(len(example_lines())))
+def test_each_example_line_runs(make_run: MakeRun, index: int) -> None:
+    words = example_lines()[index]
+    assert words[:2] == ['python', 'examples/move_and_echo.py'], words
+    args = example_module().parse_args(['move_and_echo', *words[2:]])
+    refused = make_run.node.output().count('refused')
+    done = subprocess.run([sys.executable, *words[1:]], cwd=str(ROOT), env=make_run.env(),
+                          capture_output=True, text=True, timeout=EXAMPLE_TIMEOUT_S)
+    told = f'{shlex.join(words)}:\n{done.stdout}{done.stderr}\nnode:\n{make_run.node.output()}'
+    assert done.returncode == 0, told
+    states = [line for line in done.stdout.splitlines() if re.match(r' *\d+\.\d+ s  ', line)]
+    assert len(states) == args.count, told
+    assert f'{args.joint}=' in states[-1], told
+    assert make_run.node.output().count('refused') == refused, told   # the command was taken
+    if args.kind == 'position':   # the joint went there
+        last = re.search(rf'(?:^| ){re.escape(args.joint)}=([-+]\d+\.\d+)', states[-1])
+        assert last is not None and abs(float(last.group(1)) - args.value) < 0.03, told

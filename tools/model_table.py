@@ -1,4 +1,4 @@
-"""Print the README's table of supported servos from dxl_servo_driver/models."""
+"""Print the table of supported servos of docs/servos.md from dxl_servo_driver/models."""
 
 import pathlib
 import sys

@@ -1,4 +1,9 @@
-"""Print the README's parameter tables (top level, per joint) from dxl_servo_driver/config.py."""
+"""
+Print the parameter tables of docs/parameters.md (top level, per joint) from the code.
+
+The tables are dxl_servo_driver/config.py's PARAMS and JOINT_PARAMS; test/test_readme.py checks
+that PAGE holds every row printed here. After a change to a parameter, paste the output there.
+"""
 
 import pathlib
 import sys
@@ -7,6 +12,9 @@ from typing import List
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
 from dxl_servo_driver.config import JOINT_PARAMS, PARAMS, ParamSpec  # noqa: E402 - path set-up
+
+# The page that shows the tables, from the repository's root.
+PAGE = 'docs/parameters.md'
 
 _KINDS = {'list': 'string[]', 'float': 'double', 'str': 'string'}
 # The open family of joint parameters, judged against the servo's control table.

@@ -32,7 +32,7 @@ __all__ = ['ALL_MODELS', 'FAMILIES', 'MANUAL_DIFFERENCES', 'model_for', 'model_n
 X_FAMILIES: tuple[str, ...] = (
     'XM430/XH430/XD430', 'XM540/XH540/XD540', 'XW430/XW540', 'XL430/2XL430/XC430/2XC430',
     'XL330/XC330/XM335')
-# The families as the refusal text and the README name them.
+# The families as the refusal text and docs/servos.md name them.
 FAMILIES: tuple[str, ...] = (
     *X_FAMILIES, 'MX-28/64/106(2.0)', 'P (PH42/PH54/PM42/PM54)', 'PRO(A)',
     'PRO (H42/H54/M42/M54/L42/L54)', 'RH-P12-RN/RH-P12-RN(A)',
