@@ -70,6 +70,13 @@ def test_supported_servo_table_matches_the_models() -> None:
                          '(python tools/model_table.py):\n' + '\n'.join(missing))
 
 
+def test_the_simulators_command_table_is_the_consoles() -> None:
+    from dxl_servo_driver.sim.control import commands_markdown
+    assert commands_markdown().rstrip('\n') in (DOCS / 'simulator.md').read_text(), (
+        'docs/simulator.md: the console command table is out of date (paste '
+        'dxl_servo_driver.sim.control.commands_markdown())')
+
+
 def test_readme_shows_every_topic_service_and_executable() -> None:
     for name in ('make run', 'make test'):   # the first screen's two commands
         assert name in README, name

@@ -11,6 +11,8 @@ from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, crc16, decode_packet, encode_instruction, encode_status, ErrorCode,
     Instruction, Packet)
+from dxl_servo_driver.sim import protocol2
+from dxl_servo_driver.sim import servo as sim_servo
 from dxl_servo_driver.sim.bus import SimBus
 import pytest
 
@@ -486,3 +488,15 @@ def test_stuffed_status_packet(bench: Bench) -> None:
     crc = crc16(body)
     assert replies == [body + bytes((crc & 0xFF, crc >> 8))]
     assert decode_packet(replies[0]).params == b'\xff\xff\xfd'
+
+
+def test_the_2_0_handlers_are_protocol2s_and_read_at_every_packet(
+        bench: Bench, monkeypatch: pytest.MonkeyPatch) -> None:
+    # servo._HANDLERS is sim/protocol2.py's table itself: a handler stood in there is the one
+    # that answers (test_fast_sync.py stands one in for FAST_SYNC_READ).
+    assert sim_servo._HANDLERS is protocol2.HANDLERS
+    assert sim_servo.parse_bulk_write is protocol2.parse_bulk_write
+    monkeypatch.setitem(sim_servo._HANDLERS, Instruction.PING, lambda *args: None)
+    assert bench.send(1, Instruction.PING) == []
+    monkeypatch.undo()
+    assert bench.one(1, Instruction.PING).error == 0

@@ -31,11 +31,17 @@ from dxl_servo_driver.protocol import (
     StreamParser)
 from dxl_servo_driver.protocol1 import StreamParser1
 from dxl_servo_driver.sim import protocol1
-from dxl_servo_driver.sim.control import ERROR_KINDS
 from dxl_servo_driver.sim.dynamics import ServoDynamics
 from dxl_servo_driver.sim.memory import MANUAL_MODEL
 from dxl_servo_driver.sim.servo import SimServo
 
+# The words of inject_error (and of the console's `error ID KIND`, README.md) and the Hardware
+# Error Status bit each one latches, by the model's name for it (models.Model.hardware_error_bits
+# has the bit values).
+ERROR_KINDS: dict[str, str] = {
+    'overload': 'overload', 'overheat': 'overheating', 'voltage': 'input_voltage',
+    'encoder': 'motor_encoder', 'shock': 'electrical_shock',
+}
 # Replies of one packet stay in wire order even if two servos share an id (bus order then).
 _LAST = 1 << 16
 _FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
@@ -268,7 +274,7 @@ class SimBus:
         """
         Latch a hardware error: overload, overheat, voltage, encoder or shock.
 
-        The word names one of the model's Hardware Error Status bits (control.ERROR_KINDS); the
+        The word names one of the model's Hardware Error Status bits (ERROR_KINDS); the
         bit is the servo's model's.
         """
         name = ERROR_KINDS.get(kind)

@@ -48,14 +48,17 @@ velocity_profile.py):
   stall reads 1000 at any supply. They have no Goal Current nor Current Limit: nothing but the
   PWM limits their current.
 
-At ~600 lines the module is one servo's physics: advance() keeps its state in local variables
-through the 1 ms loop (it runs a thousand times per simulated second per servo), which is why
-it is long and why it is not split.
+One span of advance() (_run) is the motor, gearbox and overload timer of every mode, and one
+small controller per operating mode (_PositionControl for the three position modes,
+_VelocityControl, _CurrentControl, _PwmControl; _Free with torque off) gives the output each
+1 ms period. The loop keeps the motor's state in local variables (it runs a thousand times per
+simulated second per servo); the controllers take the integrators, the profile and the
+trajectory from ServoDynamics for a span and hand them back, which keeps them in this module.
 """
 
 import math
 import struct
-from typing import Optional, Protocol
+from typing import Callable, Optional, Protocol, Union
 
 from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.models.xm430 import INT32_MAX, INT32_MIN
@@ -66,6 +69,7 @@ from dxl_servo_driver.sim.velocity_profile import (
     ramp_velocity, X_UNITS)
 
 CONTROL_PERIOD_S = 0.001
+_PERIOD_MS = CONTROL_PERIOD_S * 1000.0
 FOLLOWING_ERROR_PULSE = 256
 IN_POSITION_PULSE = 20
 OVERLOAD_TIME_S = 1.0
@@ -213,6 +217,238 @@ def _integrated(integral: float, error: float, demand: float, gain: float,
         return None
     bound = out_limit / gain
     return max(-bound, min(bound, integral + error))
+
+
+class _Plant:
+    """
+    The motor and gearbox over one advance() span: its constants at this supply and load.
+
+    The loop integrates the horn implicitly in the linear terms (stable at 1 ms whatever the
+    motor), with stiction at rest; the current loops predict the speed from the same terms.
+    """
+
+    __slots__ = ('r_ohm', 'kt', 'ke', 'viscous', 'c1', 'ktr', 'denominator', 'friction', 'volts',
+                 'volts_eff')
+
+    def __init__(self, fitted: motor.Motor, load_nm: float, torque_on: bool,
+                 volts: float) -> None:
+        self.r_ohm = fitted.resistance_ohm
+        self.kt = fitted.torque_constant_nm_a
+        self.ke = fitted.back_emf_v_s_rad
+        self.viscous = fitted.viscous_friction_nm_s_rad
+        self.c1 = CONTROL_PERIOD_S / fitted.inertia_kg_m2
+        self.ktr = self.kt / self.r_ohm
+        # The back-EMF brakes only through a driven winding: torque off is free-run.
+        damping = (self.kt * self.ke / self.r_ohm + self.viscous) if torque_on else self.viscous
+        self.denominator = 1.0 + self.c1 * damping
+        self.friction = fitted.coulomb_friction_nm + load_nm
+        self.volts = volts
+        self.volts_eff = volts if volts > 1e-6 else 1e-6
+
+    def predict_omega(self, omega: float, current_a: float) -> float:
+        """
+        Speed at the end of the period if current_a flows (current loop's back-EMF estimate).
+
+        A real current loop runs far faster than the 1 ms period; anticipating the speed change
+        keeps the held current exact while the horn accelerates.
+        """
+        friction_nm = self.friction
+        torque = self.kt * current_a - self.viscous * omega
+        if omega > 0.0:
+            torque -= friction_nm
+        elif omega < 0.0:
+            torque += friction_nm
+        elif abs(torque) <= friction_nm:
+            return 0.0
+        else:
+            torque -= math.copysign(friction_nm, torque)
+        return omega + self.c1 * torque
+
+    def duty_for(self, current_a: float, omega: float, full: float) -> float:
+        """Return the output (PWM raw units) that drives current_a at the predicted speed."""
+        return (self.r_ohm * current_a + self.ke * self.predict_omega(omega, current_a)) \
+            / self.volts_eff * full
+
+
+# ---- one controller per operating mode -------------------------------------------------------
+# step(omega, pos) runs once per control period on the horn's speed (rad/s) and position
+# (pulses) and returns (duty in [-1, 1], output saturated, still changing): the last says an
+# integrator, a ramp or a profile moved, which keeps advance()'s idle fast path off. store()
+# hands the controller's state back to the dynamics at the end of the span.
+_Step = tuple[float, bool, bool]
+
+
+class _Free:
+    """Torque off (or a mode without a controller): the windings are open, no drive."""
+
+    def step(self, omega: float, pos: float) -> _Step:
+        """Return no drive."""
+        return 0.0, False, False
+
+    def store(self, dynamics: 'ServoDynamics') -> None:
+        """Keep nothing: there is no state."""
+
+
+class _PwmControl:
+    """PWM mode: Goal PWM, within PWM Limit, is the output."""
+
+    __slots__ = ('_out',)
+
+    def __init__(self, goal_pwm: float, pwm_limit: int, full: float) -> None:
+        self._out = (goal_pwm / full, pwm_limit > 0 and abs(goal_pwm) >= pwm_limit, False)
+
+    def step(self, omega: float, pos: float) -> _Step:
+        """Return the constant output."""
+        return self._out
+
+    def store(self, dynamics: 'ServoDynamics') -> None:
+        """Keep nothing: there is no state."""
+
+
+class _CurrentControl:
+    """Current mode: the output that drives Goal Current (within the limits) at this speed."""
+
+    __slots__ = ('_plant', '_goal_a', '_out_limit', '_full')
+
+    def __init__(self, plant: _Plant, goal_current_a: float, out_limit: float,
+                 full: float) -> None:
+        self._plant = plant
+        self._goal_a = goal_current_a
+        self._out_limit = out_limit
+        self._full = full
+
+    def step(self, omega: float, pos: float) -> _Step:
+        """Return the output for Goal Current."""
+        out_limit = self._out_limit
+        demand = self._plant.duty_for(self._goal_a, omega, self._full)
+        return (max(-out_limit, min(out_limit, demand)) / self._full,
+                abs(demand) > out_limit, False)
+
+    def store(self, dynamics: 'ServoDynamics') -> None:
+        """Keep nothing: there is no state."""
+
+
+class _PositionControl:
+    """
+    The position modes (position, extended position, current-based position): PID + FF.
+
+    The profile is sampled every period and the PID with the two feed-forwards acts on its
+    trajectory. In current-based position the output is turned into the current it would drive,
+    limited by Goal Current, and back into the output that drives that current.
+    """
+
+    __slots__ = ('_kpp', '_kpi', '_kpd', '_kff1', '_kff2', '_plant', '_out_limit', '_full',
+                 '_current_limit_a', '_pulse_per_rad_ms', '_velocity_raw_per_pulse_ms',
+                 '_acceleration_raw_per_pulse_ms2', 'integral', 'profile', 'profile_t',
+                 'traj_p', 'traj_v', 'traj_a')
+
+    def __init__(self, dynamics: 'ServoDynamics', get: Callable[[str], int], plant: _Plant,
+                 out_limit: float, full: float, current_limit_a: float | None) -> None:
+        self._kpp = get('position_p_gain') / 128.0 * dynamics._kpp
+        self._kpi = get('position_i_gain') / 65536.0 * dynamics._kpi
+        self._kpd = get('position_d_gain') / 16.0 * dynamics._kpd
+        self._kff1 = get('feedforward_1st_gain') / 4.0 * dynamics._kff1
+        self._kff2 = get('feedforward_2nd_gain') / 4.0 * dynamics._kff2
+        self._plant = plant
+        self._out_limit = out_limit
+        self._full = full
+        self._current_limit_a = current_limit_a   # current-based position only
+        self._pulse_per_rad_ms = dynamics._pulse_per_rad / 1000.0
+        self._velocity_raw_per_pulse_ms = dynamics._velocity_raw_per_pulse_ms
+        self._acceleration_raw_per_pulse_ms2 = 1.0 / dynamics._profile_units.acceleration_pulse_ms2
+        self.integral = dynamics._pos_integral
+        self.profile = dynamics._profile
+        self.profile_t = dynamics._profile_t_ms
+        self.traj_p = dynamics._traj_pulse
+        self.traj_v = dynamics._traj_vel_pulse_ms
+        self.traj_a = dynamics._traj_acc_pulse_ms2
+
+    def step(self, omega: float, pos: float) -> _Step:
+        """Follow the profile one period; return the PID + feed-forward output."""
+        profile = self.profile
+        if profile is not None:
+            self.profile_t += _PERIOD_MS
+            self.traj_p, self.traj_v, self.traj_a = profile.sample(self.profile_t)
+            if self.profile_t >= profile.duration_ms:
+                profile = self.profile = None
+        full = self._full
+        out_limit = self._out_limit
+        traj_v = self.traj_v
+        error = self.traj_p - pos
+        traj_v_raw = traj_v * self._velocity_raw_per_pulse_ms
+        demand = self._kpp * error + self._kpi * self.integral \
+            + self._kpd * (traj_v - omega * self._pulse_per_rad_ms) \
+            + self._kff1 * traj_v_raw \
+            + self._kff2 * self.traj_a * self._acceleration_raw_per_pulse_ms2
+        limit_a = self._current_limit_a
+        if limit_a is not None:
+            plant = self._plant
+            target_a = (demand / full * plant.volts - plant.ke * omega) / plant.r_ohm
+            if target_a > limit_a:
+                target_a = limit_a
+            elif target_a < -limit_a:
+                target_a = -limit_a
+            demand = plant.duty_for(target_a, omega, full)
+        moved = _integrated(self.integral, error, demand, self._kpi, out_limit)
+        if moved is not None:
+            self.integral = moved
+        return (max(-out_limit, min(out_limit, demand)) / full, abs(demand) > out_limit,
+                moved is not None or profile is not None)
+
+    def store(self, dynamics: 'ServoDynamics') -> None:
+        """Hand the integral, the profile and the trajectory back."""
+        dynamics._pos_integral = self.integral
+        dynamics._profile = self.profile
+        dynamics._profile_t_ms = self.profile_t
+        dynamics._traj_pulse = self.traj_p
+        dynamics._traj_vel_pulse_ms = self.traj_v
+        dynamics._traj_acc_pulse_ms2 = self.traj_a
+
+
+class _VelocityControl:
+    """Velocity mode: a PI on the speed, its target ramped by Profile Acceleration."""
+
+    __slots__ = ('_kvp', '_kvi', '_goal', '_acceleration_raw', '_units', '_unit_per_rad_s',
+                 '_out_limit', '_full', 'integral', 'target')
+
+    def __init__(self, dynamics: 'ServoDynamics', get: Callable[[str], int], out_limit: float,
+                 full: float) -> None:
+        beta = dynamics._beta_pulse_s_per_unit
+        self._kvp = get('velocity_p_gain') / 128.0 * beta * dynamics._kvp
+        self._kvi = get('velocity_i_gain') / 65536.0 * beta * dynamics._kvi
+        self._goal = float(get('goal_velocity'))
+        self._acceleration_raw = get('profile_acceleration')
+        self._units = dynamics._profile_units
+        self._unit_per_rad_s = dynamics._velocity_unit_per_rad_s
+        self._out_limit = out_limit
+        self._full = full
+        self.integral = dynamics._vel_integral
+        self.target = dynamics._vel_traj_raw
+
+    def step(self, omega: float, pos: float) -> _Step:
+        """Ramp the target one period; return the PI output."""
+        changing = False
+        if self.target != self._goal:
+            self.target = ramp_velocity(self.target, self._goal, self._acceleration_raw,
+                                        _PERIOD_MS, self._units)
+            changing = True
+        out_limit = self._out_limit
+        error = self.target - omega * self._unit_per_rad_s
+        demand = self._kvp * error + self._kvi * self.integral
+        moved = _integrated(self.integral, error, demand, self._kvi, out_limit)
+        if moved is not None:
+            self.integral = moved
+            changing = True
+        return (max(-out_limit, min(out_limit, demand)) / self._full, abs(demand) > out_limit,
+                changing)
+
+    def store(self, dynamics: 'ServoDynamics') -> None:
+        """Hand the integral and the ramped target back."""
+        dynamics._vel_integral = self.integral
+        dynamics._vel_traj_raw = self.target
+
+
+_Controller = Union[_Free, _PwmControl, _CurrentControl, _PositionControl, _VelocityControl]
 
 
 class ServoDynamics:
@@ -400,38 +636,21 @@ class ServoDynamics:
             self.temperature_c, self.ambient_c, fitted.heat_power_w(mean_i2, volts), dt_s)
         return self._publish(regs, mode, torque_on, overloaded_span)
 
-    def _run(self, steps: int, regs: RegisterStore, mode: Optional[int], torque_on: bool,
-             volts: float) -> tuple[float, bool]:
-        """Run whole control periods; return (sum of i^2 over the periods, overload seen)."""
+    def _controller(self, regs: RegisterStore, mode: Optional[int], torque_on: bool,
+                    plant: _Plant) -> _Controller:
+        """Return the controller of the mode, with the limits and gains the registers hold now."""
+        if not torque_on:
+            return _Free()
         get = regs.get
-        fitted = self.motor
-        dt = CONTROL_PERIOD_S
-        dt_ms = dt * 1000.0
-        r_ohm = fitted.resistance_ohm
-        kt = fitted.torque_constant_nm_a
-        ke = fitted.back_emf_v_s_rad
-        c1 = dt / fitted.inertia_kg_m2
-        ktr = kt / r_ohm
-        damping = (kt * ke / r_ohm + fitted.viscous_friction_nm_s_rad) if torque_on \
-            else fitted.viscous_friction_nm_s_rad
-        denominator = 1.0 + c1 * damping
-        friction = fitted.coulomb_friction_nm + self.load_nm
-        pulse_per_rad_dt = self._pulse_per_rad * dt
-        pulse_per_rad_ms = self._pulse_per_rad / 1000.0
-        unit_per_rad_s = self._velocity_unit_per_rad_s
-        velocity_raw_per_pulse_ms = self._velocity_raw_per_pulse_ms
-        acceleration_raw_per_pulse_ms2 = 1.0 / self._profile_units.acceleration_pulse_ms2
         full = float(self._pwm_full_raw)
-        volts_eff = volts if volts > 1e-6 else 1e-6
-        overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
-
         pwm_limit = max(0, get('pwm_limit'))
+        if mode == MODE_PWM:
+            return _PwmControl(float(max(-pwm_limit, min(pwm_limit, get('goal_pwm')))),
+                               pwm_limit, full)
         # Goal PWM caps the output in every mode (the XM430 manual) of a model that has a PWM
         # mode; a model without one (the Y) has it as a plain register, capped by PWM Limit.
         out_limit = float(min(abs(get('goal_pwm')), pwm_limit) if self._goal_pwm_caps
                           else pwm_limit)
-        if mode == MODE_PWM:
-            out_limit = float(pwm_limit)
         ampere_per_unit = self._ampere_per_unit
         if ampere_per_unit is None:
             # No Goal Current nor Current Limit (nor the modes that use them) on this model.
@@ -442,36 +661,42 @@ class ServoDynamics:
                 * ampere_per_unit
             goal_current_a = max(-current_limit_a, min(current_limit_a, get('goal_current')
                                                        * ampere_per_unit))
-        goal_pwm = float(max(-pwm_limit, min(pwm_limit, get('goal_pwm'))))
-        position_mode = mode in POSITION_MODES
-        kpp = kpi = kpd = kff1 = kff2 = kvp = kvi = 0.0
-        goal_velocity = 0.0
-        acceleration_raw = 0
-        if position_mode:
-            kpp = get('position_p_gain') / 128.0 * self._kpp
-            kpi = get('position_i_gain') / 65536.0 * self._kpi
-            kpd = get('position_d_gain') / 16.0 * self._kpd
-            kff1 = get('feedforward_1st_gain') / 4.0 * self._kff1
-            kff2 = get('feedforward_2nd_gain') / 4.0 * self._kff2
-        elif mode == MODE_VELOCITY:
-            kvp = get('velocity_p_gain') / 128.0 * self._beta_pulse_s_per_unit * self._kvp
-            kvi = get('velocity_i_gain') / 65536.0 * self._beta_pulse_s_per_unit * self._kvi
-            goal_velocity = float(get('goal_velocity'))
-            acceleration_raw = get('profile_acceleration')
+        if mode == MODE_CURRENT:
+            return _CurrentControl(plant, goal_current_a, out_limit, full)
+        if mode in POSITION_MODES:
+            return _PositionControl(
+                self, get, plant, out_limit, full,
+                current_limit_a if mode == MODE_CURRENT_BASED_POSITION else None)
+        if mode == MODE_VELOCITY:
+            return _VelocityControl(self, get, out_limit, full)
+        return _Free()
+
+    def _run(self, steps: int, regs: RegisterStore, mode: Optional[int], torque_on: bool,
+             volts: float) -> tuple[float, bool]:
+        """
+        Run whole control periods; return (sum of i^2 over the periods, overload seen).
+
+        The mode's controller gives the output each period; the motor, the gearbox and the
+        overload timer are the same in every mode.
+        """
+        plant = _Plant(self.motor, self.load_nm, torque_on, volts)
+        controller = self._controller(regs, mode, torque_on, plant)
+        control = controller.step
+        dt = CONTROL_PERIOD_S
+        r_ohm = plant.r_ohm
+        ke = plant.ke
+        c1 = plant.c1
+        ktr = plant.ktr
+        denominator = plant.denominator
+        friction = plant.friction
+        pulse_per_rad_dt = self._pulse_per_rad * dt
+        overload_current = OVERLOAD_CURRENT_FRACTION * volts / r_ohm
 
         omega = self._omega_rad_s
         pos = self.horn_position_pulse
         duty = self.duty
         current = self.current_a
         overload_s = self._overload_s
-        pos_integral = self._pos_integral
-        vel_integral = self._vel_integral
-        profile = self._profile
-        profile_t = self._profile_t_ms
-        traj_p = self._traj_pulse
-        traj_v = self._traj_vel_pulse_ms
-        traj_a = self._traj_acc_pulse_ms2
-        vel_traj = self._vel_traj_raw
         sum_i2 = 0.0
         overload_seen = False
         frozen_count = 0
@@ -480,57 +705,7 @@ class ServoDynamics:
             step += 1
             previous_duty = duty
             previous_omega = omega
-            integral_moved = False
-            saturated = False
-            # ---- controller: duty in [-1, 1]
-            if not torque_on:
-                duty = 0.0
-            elif mode == MODE_PWM:
-                duty = goal_pwm / full
-                saturated = pwm_limit > 0 and abs(goal_pwm) >= pwm_limit
-            elif mode == MODE_CURRENT:
-                demand = (r_ohm * goal_current_a + ke * self._predict_omega(
-                    omega, goal_current_a, friction, c1)) / volts_eff * full
-                saturated = abs(demand) > out_limit
-                duty = max(-out_limit, min(out_limit, demand)) / full
-            elif position_mode:
-                if profile is not None:
-                    profile_t += dt_ms
-                    traj_p, traj_v, traj_a = profile.sample(profile_t)
-                    if profile_t >= profile.duration_ms:
-                        profile = None
-                error = traj_p - pos
-                traj_v_raw = traj_v * velocity_raw_per_pulse_ms
-                demand = kpp * error + kpi * pos_integral \
-                    + kpd * (traj_v - omega * pulse_per_rad_ms) \
-                    + kff1 * traj_v_raw + kff2 * traj_a * acceleration_raw_per_pulse_ms2
-                if mode == MODE_CURRENT_BASED_POSITION:
-                    target_a = (demand / full * volts - ke * omega) / r_ohm
-                    if target_a > current_limit_a:
-                        target_a = current_limit_a
-                    elif target_a < -current_limit_a:
-                        target_a = -current_limit_a
-                    demand = (r_ohm * target_a + ke * self._predict_omega(
-                        omega, target_a, friction, c1)) / volts_eff * full
-                saturated = abs(demand) > out_limit
-                moved = _integrated(pos_integral, error, demand, kpi, out_limit)
-                if moved is not None:
-                    pos_integral, integral_moved = moved, True
-                duty = max(-out_limit, min(out_limit, demand)) / full
-            elif mode == MODE_VELOCITY:
-                if vel_traj != goal_velocity:
-                    vel_traj = ramp_velocity(vel_traj, goal_velocity, acceleration_raw, dt_ms,
-                                             self._profile_units)
-                    integral_moved = True
-                error = vel_traj - omega * unit_per_rad_s
-                demand = kvp * error + kvi * vel_integral
-                saturated = abs(demand) > out_limit
-                moved = _integrated(vel_integral, error, demand, kvi, out_limit)
-                if moved is not None:
-                    vel_integral, integral_moved = moved, True
-                duty = max(-out_limit, min(out_limit, demand)) / full
-            else:
-                duty = 0.0
+            duty, saturated, changing = control(omega, pos)
             # ---- motor and gearbox (implicit in the linear terms, stiction at rest)
             drive = ktr * duty * volts if torque_on else 0.0
             if omega == 0.0:
@@ -557,7 +732,7 @@ class ServoDynamics:
                 overload_s = 0.0
             # ---- idle fast path: nothing will change in the remaining periods
             if omega == 0.0 and previous_omega == 0.0 and duty == previous_duty \
-                    and profile is None and not integral_moved:
+                    and not changing:
                 frozen_count += 1
                 if frozen_count >= 2 and step < steps:
                     rest = steps - step
@@ -575,42 +750,13 @@ class ServoDynamics:
         self.duty = duty
         self.current_a = current
         self._overload_s = overload_s
-        self._pos_integral = pos_integral
-        self._vel_integral = vel_integral
-        self._profile = profile
-        self._profile_t_ms = profile_t
-        if position_mode and torque_on:
-            self._traj_pulse = traj_p
-            self._traj_vel_pulse_ms = traj_v
-            self._traj_acc_pulse_ms2 = traj_a
-        elif not torque_on:
+        controller.store(self)
+        if not torque_on:
             self._traj_pulse = pos
             self._traj_vel_pulse_ms = 0.0
             self._traj_acc_pulse_ms2 = 0.0
             self._target_pulse = pos
-        self._vel_traj_raw = vel_traj
         return sum_i2, overload_seen
-
-    def _predict_omega(self, omega: float, current_a: float, friction_nm: float,
-                       c1: float) -> float:
-        """
-        Speed at the end of the period if current_a flows (current loop's back-EMF estimate).
-
-        A real current loop runs far faster than the 1 ms period; anticipating the speed change
-        keeps the held current exact while the horn accelerates.
-        """
-        fitted = self.motor
-        torque = fitted.torque_constant_nm_a * current_a \
-            - fitted.viscous_friction_nm_s_rad * omega
-        if omega > 0.0:
-            torque -= friction_nm
-        elif omega < 0.0:
-            torque += friction_nm
-        elif abs(torque) <= friction_nm:
-            return 0.0
-        else:
-            torque -= math.copysign(friction_nm, torque)
-        return omega + c1 * torque
 
     def _load_raw(self) -> int:
         """Return Present Load: the motor's torque over the stall torque at the present supply."""

@@ -7,8 +7,9 @@
               [--trace-goals FILE] [--trace-state FILE]
 
 Prints the pty's device path as its first stdout line, then answers control lines read on
-standard input (sim/control.py) with one line each. Clients read the device from that line, so
-the servos' models go to a start line on stderr instead:
+standard input (sim/control.py, whose table `virtual_bus --help` lists) with one line each.
+Clients read the device from that line, so the servos' models go to a start line on stderr
+instead:
 `virtual_bus: /dev/pts/N: id 1 XM430-W210 (model 1030, firmware 45), id 2 ...`.
 SIGINT/SIGTERM end it cleanly (exit 0) and remove the --link symlink. Standard input reaching
 EOF does not stop it.
@@ -25,6 +26,12 @@ at another baud neither hear nor answer.
 Instruction bytes are handed to the servos as soon as they arrive on the pty, so the servo state
 is sampled up to one instruction's transmission time early; with --timing wire the replies are
 then released at the times computed by sim/timing.py.
+
+Between the servos and the pty sits a USB adapter (sim/adapter_faults.FaultEngine) whose faults
+the `adapter ...` control lines set: the replies reach it when they would reach a real adapter
+(at their wire times with --timing wire), and it hands them to the pty. While every one of its
+faults is off and it holds nothing, the replies go straight to the pty. Its packets are cut by
+the framing of Protocol 1.0 when every servo speaks 1.0 at start-up, else of Protocol 2.0.
 """
 
 import argparse
@@ -43,6 +50,7 @@ from typing import Callable, Mapping, NoReturn, Sequence, TextIO
 from dxl_servo_driver import protocol, protocol1
 from dxl_servo_driver.models import Model, model_for, model_named, ModelError, xm430
 from dxl_servo_driver.sim import control
+from dxl_servo_driver.sim.adapter_faults import FaultEngine
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, Memory
@@ -225,10 +233,11 @@ class StateTracer:
 
 
 class VirtualBusServer:
-    """Serve a SimBus on a pseudo-terminal."""
+    """Serve a SimBus on a pseudo-terminal, through an adapter whose faults can be set."""
 
     def __init__(self, bus: SimBus, timing: str = 'instant', latency_s: float = 0.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 adapter: FaultEngine | None = None) -> None:
         self.bus = bus
         self.timing = timing
         self.stats = LatenessStats()
@@ -245,6 +254,10 @@ class VirtualBusServer:
         self.goal_tracer: 'GoalTracer | None' = None
         self.state_tracer: 'StateTracer | None' = None
         self.spin_s = SPIN_S
+        # The adapter in front of the pty, every fault off until a control line sets one.
+        self.adapter = adapter if adapter is not None else FaultEngine(seed=None, clock=clock)
+        # Its changes come from the console's thread: the loop wakes to its new timing.
+        self.adapter.add_listener(self._wake)
 
     def open_pty(self, initial_baud_bps: int) -> str:
         """Create the pty in raw mode; return the slave's device path."""
@@ -262,10 +275,13 @@ class VirtualBusServer:
     def stop(self) -> None:
         """Ask serve() to return (safe from a signal handler or another thread)."""
         self._stopping = True
+        self._wake()
+
+    def _wake(self) -> None:
         try:
             os.write(self._wake_w, b'\0')
         except OSError:
-            pass
+            pass  # full (a wake is pending anyway) or closed
 
     def serve(self) -> None:
         """Move bytes between the pty and the bus until stop()."""
@@ -286,6 +302,9 @@ class VirtualBusServer:
                     timeout_s = 0.0   # look for input, then the next servo
                 else:
                     timeout_s = min(timeout_s, CONTROL_PERIOD_S)
+            adapter_s = self.adapter.next_event_s()
+            if adapter_s is not None:
+                timeout_s = min(timeout_s, max(0.0, adapter_s - now_s))
             tracer = self.state_tracer
             if tracer is not None:
                 timeout_s = min(timeout_s, max(0.0, tracer.next_s - now_s))
@@ -298,6 +317,7 @@ class VirtualBusServer:
             if self._master in readable:
                 self._receive()
             self._deliver_due()
+            self._adapter_out()
             if tracer is not None:
                 tracer.sample(self._clock())
 
@@ -326,6 +346,7 @@ class VirtualBusServer:
         now_s = self._clock()
         if self.goal_tracer is not None:
             self.goal_tracer.feed(data, now_s)
+        self.adapter.host_bytes(data, now_s)   # its echo, when that fault is on
         baud_bps = tty_speed_bps(self._slave)
         replies = self.bus.feed(data, baud_bps)
         if self.timing == 'instant':
@@ -347,13 +368,32 @@ class VirtualBusServer:
             # earlier one is slept for (a few us late, still long before the next is due); a
             # spin before every reply kept a core busy and took it from the driver under test.
             hybrid_wait(due_s, self._clock, spin_s=self.spin_s if not self._pending else 0.0)
-            self.stats.record(self._clock() - due_s)
+            now_s = self._clock()
+            self.stats.record(now_s - due_s)
+            if self.adapter.engaged(now_s):
+                self.adapter.servo_bytes(data, now_s)   # out by _adapter_out, when it says
+                continue
             try:
                 # The client is not reading and the pty buffer is full: like an adapter's
                 # overflowing receive buffer, what does not fit is lost.
                 os.write(self._master, data)
             except BlockingIOError:
                 pass
+
+    def _adapter_out(self) -> None:
+        """Write what the adapter has released by now to the pty."""
+        adapter = self.adapter
+        data = adapter.take(self._clock(), 1 << 20)
+        if not data:
+            return
+        try:
+            written = os.write(self._master, data)
+        except BlockingIOError:
+            written = 0
+        if written < len(data):
+            # The pty buffer is full: what does not fit is lost (as on the direct path).
+            with adapter.cond:
+                adapter.stats.overflow_bytes += len(data) - written
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -369,7 +409,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     delay_range = f'{delay.minimum}..{delay.maximum}'
     delay_unit_us = protocol.RETURN_DELAY_UNIT_S * 1e6
     parser = _OneLineParser(prog='virtual_bus',
-                            description='Simulated Dynamixel servos on a pseudo-terminal.')
+                            description='Simulated Dynamixel servos on a pseudo-terminal.',
+                            epilog=control.commands_help(),
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--ids', type=int, nargs='+', required=True,
                         help=f'servo ids (0..{control.MAX_SERVO_ID})')
     parser.add_argument('--baud', type=int, default=57600,
@@ -381,7 +423,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--return-delay-time', type=int, default=None, metavar='RAW',
                         help=f'Return Delay Time register ({delay_unit_us:g} us units, '
                              f'{delay_range})')
-    parser.add_argument('--seed', type=int, default=None, help='random seed of fault injection')
+    parser.add_argument('--seed', type=int, default=None,
+                        help='random seed of fault injection (servos and adapter)')
     parser.add_argument('--models', nargs='+', default=None, metavar='M',
                         help='model number or name of the servos (XL430-W250, any case): one '
                              'for all ids or one per id (default 1030)')
@@ -498,7 +541,8 @@ class _Console:
     def run(self, stream: TextIO) -> None:
         try:
             for line in stream:
-                answer = control.handle_line(line, self._server.bus, self._server.stats.line)
+                server = self._server
+                answer = control.handle_line(line, server.bus, server.stats.line, server.adapter)
                 if answer is not None:
                     self.say(answer)
         except (OSError, ValueError):
@@ -515,7 +559,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (StartupError, ValueError) as exc:  # ValueError: SimBus refused the ids
         print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
         return 1
-    server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0)
+    # The adapter's packets are cut by the framing of the protocol the servos speak.
+    framing = 1 if all(bus.servo(i).protocol_version == 1 for i in bus.servo_ids()) else 2
+    adapter = FaultEngine(seed=args.seed, protocol=framing)
+    server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0, adapter=adapter)
     trace_files: dict[str, TextIO] = {}
     for option, path in (('goals', args.trace_goals), ('state', args.trace_state)):
         if not path:

@@ -1,0 +1,846 @@
+"""
+A misbehaving USB/RS-485 adapter between a host and the (simulated) servos.
+
+One fault engine (FaultEngine) mangles the servo->host byte stream a whole status packet at a
+time: late, duplicated, truncated, noisy, dropped, delayed and echoed replies, and frozen
+adapters. Three front ends put it in front of servos:
+
+* virtual_bus holds one between its servos and its pty (VirtualBusServer), set from its console
+  with the `adapter ...` lines (sim/control.py);
+* FaultyPort wraps a raw port in process (the bus layer's RawPort interface, typically the
+  simulator's SimPortHandler);
+* AdapterProxy is a pseudo-terminal whose far end is a serial device (typically a virtual_bus
+  pty), for clients that open a device path.
+
+Every fault is off by default and can be changed at run time from any thread (set(), clear(),
+freeze()); a seeded random.Random makes a run reproducible. Nothing here imports rclpy.
+Replies are cut into packets by the framing of one protocol (`protocol`: 2, or 1 for Protocol
+1.0's FF FF header and one-byte length), which also shapes the noise's forged headers.
+"""
+
+import collections
+import dataclasses
+import errno
+import heapq
+import os
+import random
+import select
+import termios
+import threading
+import time
+import tty
+from typing import Any, Callable, Optional, Protocol
+
+from dxl_servo_driver import protocol1
+from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
+from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
+
+# Replies a late copy is chosen from.
+LATE_HISTORY = 20
+# Bytes of an incomplete packet (or a trailing header prefix) wait this long for the rest, then
+# pass as they are; as the servos' own receiver, a gap this long ends a packet.
+PARTIAL_FLUSH_S = 0.01
+# FaultyPort: a wrapped port that is not 'instant' may produce bytes at any time; a waiting
+# read looks at it this often.
+POLL_S = 0.001
+# AdapterProxy
+READ_CHUNK = 4096
+IDLE_S = 0.5            # the proxy thread's longest sleep (a wake pipe ends it early)
+WRITE_TIMEOUT_S = 1.0   # how long the proxy waits for a full upstream device to take bytes
+HEAD = len(HEADER) + 3  # header, id and the two length bytes
+
+
+class RawPort(Protocol):
+    """
+    The raw port FaultyPort wraps: serial_port.RawPort's interface, typically SimPortHandler.
+
+    Spelled out here: the simulator builds on the bottom layer only, not on the bus layer's
+    serial_port.py.
+    """
+
+    @property
+    def baudrate(self) -> int:
+        """Return the line speed in bit/s."""
+
+    @baudrate.setter
+    def baudrate(self, baud_bps: int) -> None:
+        """Change the line speed."""
+
+    @property
+    def in_waiting(self) -> int:
+        """Return how many received bytes wait to be read."""
+
+    def write(self, data: bytes) -> int:
+        """Send bytes."""
+
+    def read(self, size: int, timeout_s: float) -> bytes:
+        """Block until size bytes arrived or timeout_s passed; return what arrived."""
+
+    def reset_input_buffer(self) -> None:
+        """Drop whatever was received and not read."""
+
+    def close(self) -> None:
+        """Release the port."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Framing:
+    """How one protocol's packets are cut from a byte stream: by header and length field."""
+
+    header: bytes
+    head: int              # header, id and length field: the bytes before the length counts
+    length_bytes: int      # the length field's size (little endian)
+    min_length: int        # a length field below this is noise (as the servos' receiver)
+    max_length: int        # and above this
+    # Bytes a header found to be noise gives up: 1 in Protocol 1.0, where noise before a real
+    # header makes FF FF FF (the real header starts at the second FF).
+    noise_skip: int
+
+    def length(self, buffer: bytearray) -> int:
+        """Return the length field of the packet buffer starts with."""
+        field = buffer[self.head - self.length_bytes:self.head]
+        return int.from_bytes(field, 'little')
+
+
+FRAMINGS = {
+    2: Framing(HEADER, HEAD, 2, 3, MAX_PACKET_LENGTH, len(HEADER)),
+    1: Framing(protocol1.HEADER, len(protocol1.HEADER) + 2, 1, 2, protocol1.MAX_LENGTH, 1),
+}
+
+
+def _check_probability(name: str, value: float) -> None:
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f'{name} must be within 0..1, got {value!r}')
+
+
+def _check_range(name: str, value: tuple[float, float], low: float = 0.0) -> None:
+    if len(value) != 2 or not low <= value[0] <= value[1]:
+        raise ValueError(f'{name} must be (lo, hi) with {low} <= lo <= hi, got {value!r}')
+
+
+@dataclasses.dataclass
+class Faults:
+    """
+    The adapter's fault settings; all off by default.
+
+    Probabilities are per status packet from the servos (a reply); ranges are (lo, hi), drawn
+    uniformly.
+    """
+
+    echo: bool = False                                 # host bytes come back to the host first
+    echo_chunk: int = 0                                # echo in pieces of this size (0: whole)
+    echo_gap_ms: float = 0.0                           # between two pieces of the echo
+    freeze_probability: float = 0.0                    # a freeze starts at a reply
+    freeze_ms: tuple[float, float] = (20.0, 100.0)     # how long a random freeze lasts
+    late_probability: float = 0.0                      # a reply schedules a late earlier reply
+    late_ms: tuple[float, float] = (5.0, 50.0)         # how late that copy comes
+    duplicate_probability: float = 0.0                 # a reply is delivered twice in a row
+    truncate_probability: float = 0.0                  # a reply loses its tail
+    noise_probability: float = 0.0                     # garbage is inserted before a reply
+    noise_bytes: tuple[int, int] = (1, 16)             # how much garbage
+    drop_probability: float = 0.0                      # a reply vanishes
+    delay_ms: tuple[float, float] = (0.0, 0.0)         # extra delay of every reply, order kept
+
+    def active(self) -> bool:
+        """Return whether any fault is on (a range without its probability is none)."""
+        return (self.echo or self.delay_ms[1] > 0.0
+                or any(getattr(self, field.name) for field in dataclasses.fields(self)
+                       if field.name.endswith('_probability')))
+
+    def check(self) -> None:
+        """Raise ValueError when a setting is out of range."""
+        for field in dataclasses.fields(self):
+            if field.name.endswith('_probability'):
+                _check_probability(field.name, getattr(self, field.name))
+        _check_range('freeze_ms', self.freeze_ms)
+        _check_range('late_ms', self.late_ms)
+        _check_range('noise_bytes', self.noise_bytes, 1)
+        _check_range('delay_ms', self.delay_ms)
+        if self.echo_chunk < 0 or not self.echo_gap_ms >= 0.0:
+            raise ValueError(f'echo_chunk and echo_gap_ms must be >= 0, got {self.echo_chunk}, '
+                             f'{self.echo_gap_ms}')
+
+
+@dataclasses.dataclass
+class FaultStats:
+    """What the engine saw and did (counts; the *_bytes fields count bytes)."""
+
+    replies: int = 0            # whole packets from the servos
+    passed_bytes: int = 0       # unparseable bytes passed through unchanged
+    echoed_bytes: int = 0
+    freezes: int = 0            # random and explicit
+    late: int = 0
+    duplicated: int = 0
+    truncated: int = 0
+    noise: int = 0
+    noise_bytes: int = 0
+    dropped: int = 0
+    delayed: int = 0
+    overflow_bytes: int = 0     # AdapterProxy: lost because the host left the pty buffer full
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counts by name."""
+        return dataclasses.asdict(self)
+
+
+def _header_prefix_len(buffer: bytearray, header: bytes = HEADER) -> int:
+    """Return how many trailing bytes could be the start of a header (0..3)."""
+    for keep in range(len(header) - 1, 0, -1):
+        if buffer.endswith(header[:keep]):
+            return keep
+    return 0
+
+
+class FaultEngine:
+    """
+    The fault model shared by FaultyPort and AdapterProxy.
+
+    Front ends hand it host bytes (host_bytes, for the echo) and servo bytes (servo_bytes, cut
+    into whole packets here so faults hit whole replies), then take what has been released to
+    the host (take) at the times next_event_s says. Bytes in flight are a heap of (release time,
+    seq, bytes): the in-order stream (replies, echo, noise, pass-through) has non-decreasing
+    release times, late copies have their own. Released bytes move to the host's receive buffer,
+    which a freeze does not touch; a freeze holds every release until it ends, so what came due
+    meanwhile goes out in one burst, in order.
+
+    Every method takes `cond`'s lock; changes notify `cond` and call the listeners, so a front
+    end waiting for the next event wakes up.
+    """
+
+    def __init__(self, faults: Optional[Faults] = None, seed: Optional[int] = 0,
+                 clock: Callable[[], float] = time.monotonic, protocol: int = 2) -> None:
+        self.framing = FRAMINGS[protocol]
+        self.cond = threading.Condition(threading.RLock())
+        self.stats = FaultStats()
+        self._faults = Faults()
+        self._faults_on = False            # whether any fault is on (Faults.active)
+        self._use(dataclasses.replace(faults) if faults is not None else Faults())
+        self._random = random.Random(seed)
+        self._clock = clock
+        self._listeners: list[Callable[[], None]] = []
+        self._queue: list[list[Any]] = []  # in flight: heap of [release_s, seq, bytearray]
+        self._rx = bytearray()             # released: the host's receive buffer
+        self._seq = 0
+        self._stream_s = float('-inf')     # release time of the stream's last item
+        self._frozen_until_s = float('-inf')
+        self._history: collections.deque[bytes] = collections.deque(maxlen=LATE_HISTORY)
+        self._partial = bytearray()        # servo bytes waiting for the rest of their packet
+        self._partial_s = 0.0
+
+    # ------------------------------------------------------------------ settings
+    @property
+    def faults(self) -> Faults:
+        """Return a copy of the current settings."""
+        with self.cond:
+            return dataclasses.replace(self._faults)
+
+    def set(self, **changes: Any) -> None:  # noqa: A003 - only shadows in the class body
+        """Change some settings (Faults field names); TypeError/ValueError on bad ones."""
+        with self.cond:
+            self._use(dataclasses.replace(self._faults, **changes))
+            self._changed()
+
+    def clear(self) -> None:
+        """Turn every fault off and end a freeze; bytes already scheduled keep their times."""
+        with self.cond:
+            self._use(Faults())
+            self._frozen_until_s = float('-inf')
+            self._changed()
+
+    def engaged(self, now_s: float) -> bool:
+        """
+        Return whether the servos' bytes must go through the engine at now_s.
+
+        False while every fault is off, nothing is held and no freeze runs: a front end may then
+        pass them straight on, unchanged and on time, as an adapter without faults would.
+        """
+        with self.cond:
+            return (self._faults_on or bool(self._queue) or bool(self._rx)
+                    or bool(self._partial) or now_s < self._frozen_until_s)
+
+    def counts(self) -> dict[str, int]:
+        """Return the statistics by name, read at one moment."""
+        with self.cond:
+            return self.stats.as_dict()
+
+    def freeze(self, duration_s: float) -> None:
+        """Stop delivering from now for duration_s; what comes due meanwhile is held."""
+        if not duration_s >= 0.0:
+            raise ValueError(f'freeze duration must be >= 0 s, got {duration_s!r}')
+        with self.cond:
+            self._freeze(self._clock(), duration_s)
+            self._changed()
+
+    def add_listener(self, listener: Callable[[], None]) -> None:
+        """Call listener (under the lock, so it must not block) whenever something changed."""
+        with self.cond:
+            self._listeners.append(listener)
+
+    def remove_listener(self, listener: Callable[[], None]) -> None:
+        """Stop calling listener (no error if it was not added)."""
+        with self.cond:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+    # ------------------------------------------------------------------ input
+    def host_bytes(self, data: bytes, now_s: float) -> None:
+        """Take bytes the host wrote at now_s (echoed back when echo is on)."""
+        with self.cond:
+            if self._faults.echo and data:
+                self.stats.echoed_bytes += len(data)
+                # In pieces, as an adapter hands them over while the bytes leave it; what the
+                # servos answer comes after the last piece (the stream keeps its order).
+                step = self._faults.echo_chunk or len(data)
+                for number, start in enumerate(range(0, len(data), step)):
+                    self._stream(bytes(data[start:start + step]),
+                                 now_s + number * self._faults.echo_gap_ms / 1000.0,
+                                 jitter=False)
+                self._changed()
+
+    def servo_bytes(self, data: bytes, now_s: float) -> None:
+        """Take bytes the servos sent that reached the adapter at now_s."""
+        with self.cond:
+            self._flush_stale(now_s)
+            if not data:
+                return
+            self._partial += data
+            self._partial_s = now_s
+            self._frame(now_s, flush=False)
+            self._changed()
+
+    def reset(self) -> None:
+        """Forget everything in flight (the adapter was unplugged or closed)."""
+        with self.cond:
+            self._queue.clear()
+            self._rx.clear()
+            self._partial.clear()
+            self._history.clear()
+            self._stream_s = float('-inf')
+            self._frozen_until_s = float('-inf')
+            self._changed()
+
+    # ------------------------------------------------------------------ output
+    def take(self, now_s: float, size: int) -> bytes:
+        """Remove and return up to size bytes released by now_s."""
+        with self.cond:
+            self._release(now_s)
+            out = bytes(self._rx[:max(0, size)])
+            del self._rx[:len(out)]
+            return out
+
+    def readable(self, now_s: float) -> int:
+        """Return how many bytes are released by now_s."""
+        with self.cond:
+            self._release(now_s)
+            return len(self._rx)
+
+    def discard_readable(self, now_s: float) -> int:
+        """Drop the bytes released by now_s (the rest stays in flight); return how many."""
+        with self.cond:
+            self._release(now_s)
+            count = len(self._rx)
+            self._rx.clear()
+            return count
+
+    def next_event_s(self) -> Optional[float]:
+        """Return when bytes are next released or a partial packet times out (None: never)."""
+        with self.cond:
+            times = []
+            if self._queue:
+                times.append(max(self._queue[0][0], self._frozen_until_s))
+            if self._partial:
+                times.append(self._partial_s + PARTIAL_FLUSH_S)
+            return min(times) if times else None
+
+    def in_flight(self) -> int:
+        """Return how many bytes are in flight (not released yet, a partial packet included)."""
+        with self.cond:
+            return sum(len(item[2]) for item in self._queue) + len(self._partial)
+
+    # ------------------------------------------------------------------ internals
+    def _use(self, faults: Faults) -> None:
+        """Check and take new settings (ValueError: the old ones stay)."""
+        faults.check()
+        self._faults = faults
+        self._faults_on = faults.active()
+
+    def _release(self, now_s: float) -> None:
+        """Pass a stale partial packet on, then release what is due by now_s."""
+        self._flush_stale(now_s)
+        self._move_due(now_s)
+
+    def _move_due(self, now_s: float) -> None:
+        """Move what is due by now_s, unless frozen, to the host's receive buffer, in order."""
+        if now_s < self._frozen_until_s:
+            return
+        queue = self._queue
+        while queue and queue[0][0] <= now_s:
+            self._rx += heapq.heappop(queue)[2]
+
+    def _changed(self) -> None:
+        self.cond.notify_all()
+        for listener in self._listeners:
+            listener()
+
+    def _freeze(self, now_s: float, duration_s: float) -> None:
+        self._move_due(now_s)  # what the host already received stays readable
+        self._frozen_until_s = max(self._frozen_until_s, now_s + duration_s)
+        self.stats.freezes += 1
+
+    def _uniform(self, bounds: tuple[float, float]) -> float:
+        return bounds[0] if bounds[0] == bounds[1] else self._random.uniform(*bounds)
+
+    def _push(self, release_s: float, data: bytes) -> None:
+        heapq.heappush(self._queue, [release_s, self._seq, bytearray(data)])
+        self._seq += 1
+
+    def _stream(self, data: bytes, now_s: float, jitter: bool) -> None:
+        """Append to the in-order stream, after a random delay when one is set."""
+        release_s = now_s
+        if jitter and self._faults.delay_ms[1] > 0.0:
+            release_s += self._uniform(self._faults.delay_ms) / 1000.0
+            self.stats.delayed += 1
+        release_s = max(release_s, self._stream_s)  # order kept: never before what came first
+        self._stream_s = release_s
+        self._push(release_s, data)
+
+    def _flush_stale(self, now_s: float) -> None:
+        if self._partial and now_s - self._partial_s >= PARTIAL_FLUSH_S:
+            self._frame(now_s, flush=True)
+
+    def _frame(self, now_s: float, flush: bool) -> None:
+        """
+        Cut the buffered servo bytes into whole packets and unparseable bytes.
+
+        Framing is by header and length field alone (a packet with a bad CRC is still a reply).
+        An incomplete packet waits unless flush: then its header is taken as garbage and the
+        rest searched again, so packets inside it keep their packet treatment.
+        """
+        buffer = self._partial
+        raw = bytearray()
+        framing = self.framing
+        header = framing.header
+        head = framing.head
+        while buffer:
+            start = buffer.find(header)
+            if start < 0:
+                keep = 0 if flush else _header_prefix_len(buffer, header)
+                raw += buffer[:len(buffer) - keep]
+                del buffer[:len(buffer) - keep]
+                break
+            raw += buffer[:start]
+            del buffer[:start]
+            if len(buffer) >= head:
+                length = framing.length(buffer)
+                # as the servos' receiver: noise
+                if length < framing.min_length or length > framing.max_length:
+                    raw += buffer[:framing.noise_skip]
+                    del buffer[:framing.noise_skip]
+                    continue
+                if len(buffer) >= head + length:
+                    if raw:
+                        self._pass(bytes(raw), now_s)
+                        raw.clear()
+                    self._reply(bytes(buffer[:head + length]), now_s)
+                    del buffer[:head + length]
+                    continue
+            if not flush:
+                break
+            raw += buffer[:framing.noise_skip]
+            del buffer[:framing.noise_skip]
+        if raw:
+            self._pass(bytes(raw), now_s)
+
+    def _pass(self, data: bytes, now_s: float) -> None:
+        self.stats.passed_bytes += len(data)
+        self._stream(data, now_s, jitter=True)
+
+    def _reply(self, packet: bytes, now_s: float) -> None:
+        """Apply the faults to one whole reply and schedule what is left of it."""
+        faults = self._faults
+        rng = self._random
+        stats = self.stats
+        stats.replies += 1
+        earlier = list(self._history)
+        self._history.append(packet)
+        if faults.late_probability and earlier and rng.random() < faults.late_probability:
+            copy = rng.choice(earlier)
+            self._push(now_s + self._uniform(faults.late_ms) / 1000.0, copy)
+            stats.late += 1
+        if faults.freeze_probability and rng.random() < faults.freeze_probability:
+            # Starts before this reply is delivered, so the reply is held too.
+            self._freeze(now_s, self._uniform(faults.freeze_ms) / 1000.0)
+        if faults.drop_probability and rng.random() < faults.drop_probability:
+            stats.dropped += 1
+            return
+        body = packet
+        if faults.truncate_probability and rng.random() < faults.truncate_probability:
+            body = packet[:rng.randint(1, len(packet) - 1)]
+            stats.truncated += 1
+        out = b''
+        if faults.noise_probability and rng.random() < faults.noise_probability:
+            count = rng.randint(*faults.noise_bytes)
+            out = self._noise(count)
+            stats.noise += 1
+            stats.noise_bytes += count
+        out += body
+        if faults.duplicate_probability and rng.random() < faults.duplicate_probability:
+            out += body
+            stats.duplicated += 1
+        self._stream(out, now_s, jitter=True)
+
+    def _noise(self, count: int) -> bytes:
+        """
+        Return count random bytes, half the time with a header fragment in them.
+
+        Header prefixes, and whole headers with a length field that is too small, too large or
+        plausible (so a parser swallows the real reply after it), are the hard cases.
+        """
+        rng = self._random
+        out = bytearray(rng.getrandbits(8) for _ in range(count))
+        framing = self.framing
+        header = framing.header
+        if rng.random() < 0.5:
+            if rng.random() < 0.5:
+                fragment = header[:rng.randint(1, len(header))]
+            elif framing.length_bytes == 2:
+                length = rng.choice((0, 2, rng.randint(3, 40), MAX_PACKET_LENGTH + 1, 0xFFFF))
+                fragment = header + bytes((rng.randrange(256),)) + length.to_bytes(2, 'little')
+            else:
+                length = rng.choice((0, 1, rng.randint(2, 40), framing.max_length))
+                fragment = header + bytes((rng.randrange(256), length))
+            fragment = fragment[:count]
+            at = rng.randint(0, count - len(fragment))
+            out[at:at + len(fragment)] = fragment
+        return bytes(out)
+
+
+class _Controls:
+    """The runtime fault controls both front ends share (delegated to self.engine)."""
+
+    engine: FaultEngine
+
+    @property
+    def stats(self) -> FaultStats:
+        """Return the live fault counters."""
+        return self.engine.stats
+
+    @property
+    def faults(self) -> Faults:
+        """Return a copy of the current settings."""
+        return self.engine.faults
+
+    def set(self, **faults: Any) -> None:  # noqa: A003 - only shadows in the class body
+        """Change some settings (Faults field names)."""
+        self.engine.set(**faults)
+
+    def clear(self) -> None:
+        """Turn every fault off and end a freeze."""
+        self.engine.clear()
+
+    def freeze(self, duration_s: float) -> None:
+        """Stop delivering servo->host bytes for duration_s from now."""
+        self.engine.freeze(duration_s)
+
+
+class FaultyPort(_Controls):
+    """
+    A raw port behind a faulty adapter, in process.
+
+    Bytes the wrapped port makes readable are moved into the engine at once; read() then
+    blocks, sleeping on the engine's condition, until the bytes it wants are released or the
+    timeout passes (even with an 'instant' wrapped port, which would return at once).
+    """
+
+    def __init__(self, port: RawPort, faults: Optional[Faults] = None,
+                 seed: Optional[int] = 0, protocol: int = 2) -> None:
+        self.port = port
+        self.engine = FaultEngine(faults, seed, protocol=protocol)
+        self._cond = self.engine.cond
+        # An 'instant' SimPortHandler only produces bytes inside write(), which notifies.
+        self._polled = getattr(port, 'timing', None) != 'instant'
+
+    @property
+    def baudrate(self) -> int:
+        """Return the wrapped port's line speed."""
+        return self.port.baudrate
+
+    @baudrate.setter
+    def baudrate(self, baud_bps: int) -> None:
+        # What the adapter already received stays: it was read off the bus at the old speed.
+        with self._cond:
+            self.port.baudrate = baud_bps
+
+    @property
+    def in_waiting(self) -> int:
+        """Return how many bytes are readable now (after the faults)."""
+        with self._cond:
+            self._pump()
+            return self.engine.readable(time.monotonic())
+
+    def write(self, data: bytes) -> int:
+        """Send bytes to the servos; with echo they come back first."""
+        payload = bytes(data)
+        with self._cond:
+            self._pump()  # earlier replies stay ahead of the echo
+            written = self.port.write(payload)
+            self.engine.host_bytes(payload[:written], time.monotonic())
+            self._pump()
+            return written
+
+    def read(self, size: int, timeout_s: float) -> bytes:
+        """Block until size bytes are readable or timeout_s passed; return what arrived."""
+        out = bytearray()
+        deadline_s = time.monotonic() + max(0.0, timeout_s)
+        with self._cond:
+            while True:
+                self._pump()
+                now_s = time.monotonic()
+                out += self.engine.take(now_s, size - len(out))
+                if len(out) >= size or now_s >= deadline_s:
+                    return bytes(out)
+                wake_s = deadline_s
+                next_s = self.engine.next_event_s()
+                if next_s is not None:
+                    wake_s = min(wake_s, next_s)
+                if self._polled:
+                    wake_s = min(wake_s, now_s + POLL_S)
+                self._cond.wait(max(0.0, wake_s - now_s))
+
+    def reset_input_buffer(self) -> None:
+        """Drop the bytes readable now; frozen, delayed and late bytes arrive later."""
+        with self._cond:
+            self._pump()
+            self.engine.discard_readable(time.monotonic())
+            self.port.reset_input_buffer()
+
+    def close(self) -> None:
+        """Close the wrapped port; what the adapter held is lost."""
+        with self._cond:
+            self.engine.reset()
+            self.port.close()
+
+    def unplug_port(self) -> None:
+        """Yank the adapter (the wrapped port's unplug_port); what it held is lost."""
+        with self._cond:
+            getattr(self.port, 'unplug_port')()
+            self.engine.reset()
+
+    def plug_port(self) -> None:
+        """Plug the adapter back in (the wrapped port's plug_port)."""
+        with self._cond:
+            getattr(self.port, 'plug_port')()
+            self._cond.notify_all()
+
+    def _pump(self) -> None:
+        """Move what the wrapped port has received into the engine (raises while unplugged)."""
+        count = self.port.in_waiting
+        if count:
+            data = self.port.read(count, 0.0)
+            self.engine.servo_bytes(data, time.monotonic())
+
+
+def _close_fd(fd: int) -> None:
+    if fd >= 0:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
+def _set_raw(fd: int) -> None:
+    """Put a terminal in raw mode (tty.setraw), keeping its speed, custom rates included."""
+    baud_bps = tty_speed_bps(fd)
+    try:
+        tty.setraw(fd)
+    except termios.error:  # a C library may refuse to write back a termios2 (BOTHER) speed
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B38400
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        tty.setraw(fd)
+    if baud_bps:
+        set_tty_speed(fd, baud_bps)
+
+
+class AdapterProxy(_Controls):
+    """
+    A faulty adapter as a pseudo-terminal in front of a serial device.
+
+    The client opens `path`; its bytes go to the upstream device unchanged (echoed back when
+    echo is on) and the servos' bytes come back through the engine. The baud rate the client
+    sets on the pty is set on the upstream device before the bytes that follow are forwarded,
+    since virtual_bus's servos only hear bytes at their own baud. One thread, sleeping in
+    poll(), moves the bytes both ways and releases what the engine has scheduled on time.
+    """
+
+    def __init__(self, upstream_device: str, faults: Optional[Faults] = None,
+                 seed: Optional[int] = 0, protocol: int = 2) -> None:
+        self.upstream_device = upstream_device
+        self.engine = FaultEngine(faults, seed, protocol=protocol)
+        self.error: Optional[BaseException] = None  # what ended the thread early, if anything
+        self.upstream_lost = False                  # the upstream device hung up
+        self._path = ''
+        self._master = self._slave = self._upstream = self._wake_r = self._wake_w = -1
+        self._baud_bps = 0
+        self._thread: Optional[threading.Thread] = None
+        self._stopping = False
+        self._lifecycle = threading.Lock()
+
+    @property
+    def path(self) -> str:
+        """Return the pty slave's path for the client ('' before start())."""
+        return self._path
+
+    @property
+    def upstream_baud(self) -> int:
+        """Return the upstream device's current speed in bps."""
+        return tty_speed_bps(self._upstream)
+
+    def start(self) -> str:
+        """Open the pty and the upstream device, start the thread; return the pty's path."""
+        with self._lifecycle:
+            if self._thread is not None or self._stopping:
+                raise RuntimeError('an AdapterProxy starts once')
+            try:
+                self._wake_r, self._wake_w = os.pipe()
+                os.set_blocking(self._wake_r, False)
+                os.set_blocking(self._wake_w, False)
+                self._upstream = os.open(self.upstream_device,
+                                         os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+                self._baud_bps = tty_speed_bps(self._upstream)
+                _set_raw(self._upstream)
+                self._master, self._slave = os.openpty()
+                # Raw: no echo of what the client writes, no CR/LF or flow-control mangling.
+                _set_raw(self._slave)
+                # The client starts at the servos' speed unless it sets its own.
+                set_tty_speed(self._slave, self._baud_bps)
+                os.set_blocking(self._master, False)
+                self._path = os.ttyname(self._slave)
+                self.engine.add_listener(self._wake)
+                self._thread = threading.Thread(target=self._run, name='adapter-proxy',
+                                                daemon=True)
+                self._thread.start()
+            except BaseException:
+                self.engine.remove_listener(self._wake)
+                self._close_fds()
+                self._thread = None
+                self._stopping = True
+                raise
+            return self._path
+
+    def stop(self) -> None:
+        """Stop the thread and close every descriptor (idempotent)."""
+        with self._lifecycle:
+            self._stopping = True
+            thread, self._thread = self._thread, None
+            if thread is not None:
+                self._wake()
+                thread.join()
+            self.engine.remove_listener(self._wake)
+            self._close_fds()
+
+    def __enter__(self) -> 'AdapterProxy':
+        """Start (unless started) and return the proxy."""
+        if self._thread is None:
+            self.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        """Stop the proxy."""
+        self.stop()
+
+    # ------------------------------------------------------------------ the thread
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b'\0')
+        except OSError:  # full (a wake is pending anyway) or closed
+            pass
+
+    def _run(self) -> None:
+        poller = select.poll()
+        poller.register(self._wake_r, select.POLLIN)
+        poller.register(self._master, select.POLLIN)
+        poller.register(self._upstream, select.POLLIN)
+        try:
+            while not self._stopping:
+                timeout_s = IDLE_S
+                next_s = self.engine.next_event_s()
+                if next_s is not None:
+                    timeout_s = min(timeout_s, max(0.0, next_s - time.monotonic()))
+                events = dict(poller.poll(timeout_s * 1000.0))
+                if self._wake_r in events:
+                    os.read(self._wake_r, 4096)
+                # Servo bytes first: replies that reached the adapter stay ahead of the echo.
+                if self._upstream in events and not self._from_servos():
+                    poller.unregister(self._upstream)
+                if self._master in events:
+                    self._from_host()
+                self._to_host()
+        except BaseException as exc:  # kept for the test to see; the thread must not vanish
+            self.error = exc
+
+    def _from_servos(self) -> bool:
+        """Move servo bytes into the engine; return False once the upstream hung up."""
+        try:
+            data = os.read(self._upstream, READ_CHUNK)
+        except BlockingIOError:
+            return True
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            data = b''
+        if not data:  # its master closed: virtual_bus has exited
+            self.upstream_lost = True
+            return False
+        self.engine.servo_bytes(data, time.monotonic())
+        return True
+
+    def _from_host(self) -> None:
+        try:
+            data = os.read(self._master, READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:  # no client has the slave open; we hold one, so rare
+                return
+            raise
+        if not data:
+            return
+        baud_bps = tty_speed_bps(self._slave)
+        if baud_bps and baud_bps != self._baud_bps:
+            set_tty_speed(self._upstream, baud_bps)
+            self._baud_bps = baud_bps
+        self.engine.host_bytes(data, time.monotonic())
+        if not self.upstream_lost:
+            self._write_upstream(data)
+
+    def _write_upstream(self, data: bytes) -> None:
+        view = memoryview(data)
+        deadline_s = time.monotonic() + WRITE_TIMEOUT_S
+        writable = select.poll()
+        writable.register(self._upstream, select.POLLOUT)
+        while view:
+            try:
+                view = view[os.write(self._upstream, view):]
+            except BlockingIOError:
+                remaining_s = deadline_s - time.monotonic()
+                if remaining_s <= 0.0:
+                    return  # the device takes nothing: those bytes are lost, as on a bus
+                writable.poll(remaining_s * 1000.0)
+
+    def _to_host(self) -> None:
+        data = self.engine.take(time.monotonic(), 1 << 20)
+        if not data:
+            return
+        try:
+            written = os.write(self._master, data)
+        except BlockingIOError:
+            written = 0
+        # The client is not reading and the pty buffer is full: like an adapter's overflowing
+        # receive buffer, the rest is lost.
+        self.engine.stats.overflow_bytes += len(data) - written
+
+    def _close_fds(self) -> None:
+        for fd in (self._master, self._slave, self._upstream, self._wake_r, self._wake_w):
+            _close_fd(fd)
+        self._master = self._slave = self._upstream = self._wake_r = self._wake_w = -1
