@@ -1,5 +1,5 @@
 """
-Simulated Dynamixel X-series servos, faithful at the byte level.
+Simulated Dynamixel servos of every supported model, faithful at the byte level.
 
 Any model of the catalogue (dxl_servo_driver.models) can be simulated: its control table,
 units and datasheet physics; the default is the XM430 manual's model 1030.
