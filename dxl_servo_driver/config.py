@@ -3,17 +3,17 @@ The driver's configuration: the one table of parameters, and their validation.
 
 PARAMS (top level) and JOINT_PARAMS (`<joint>.<key>`) say of each parameter its type, default,
 unit, range, description and when it is taken (at configure, at run time, only at a restart):
-validation, the ROS declarations (`ros2 param describe`), the runtime checks and docs/parameters.md's
-tables (tools/param_table.py) all read them. `<joint>.registers.<name>` is the open family of
-raw register values, judged against the servo's control table.
+validation, the ROS declarations (`ros2 param describe`), the runtime checks and the tables of
+docs/parameters.md (tools/param_table.py) all read them. `<joint>.registers.<name>` is the open
+family of raw register values, judged against the servo's control table.
 
 validate() takes the flat parameter dictionary a ROS parameter file gives (`joints`,
 `<joint>.id`, `<joint>.registers.<name>`, ...) and returns a DriverConfig, or raises ConfigError
 naming the offending key. It runs before the bus is touched, so a bad file never moves a servo.
 
 The module is long (~630 lines) because the table is: about half of it is the parameters' own
-descriptions, which docs/parameters.md and `ros2 param describe` print; splitting the table from the
-checks that read it would put one fact in two places.
+descriptions, which docs/parameters.md and `ros2 param describe` print; splitting the table from
+the checks that read it would put one fact in two places.
 """
 
 import dataclasses
@@ -139,7 +139,8 @@ PARAMS: Tuple[ParamSpec, ...] = (
               1.0, 1000.0, runtime=True),
     ParamSpec('cycle_driver', str, 'thread',
               'What runs the bus cycle: its own thread (never waits on the executor) or a ROS '
-              'timer in the executor (docs/performance.md: how the cycle is driven).', choices=('thread', 'timer')),
+              'timer in the executor (docs/performance.md: how the cycle is driven).',
+              choices=('thread', 'timer')),
     ParamSpec('executor', str, 'events',
               "The ROS executor: rclpy's EventsExecutor (lower command latency and CPU in the "
               'benchmark) or its SingleThreadedExecutor.', choices=('single', 'events')),
