@@ -454,23 +454,55 @@ class StreamParser:
         return [ParseEvent(frame.packet(), frame.crc_ok, frame.raw) for frame in frames]
 
 
+# What each ErrorCode of a status packet means, as a refusal is reported (Framer.error_text).
+ERROR_TEXT: dict[int, str] = {
+    ErrorCode.RESULT_FAIL: 'result fail (the servo could not process the instruction)',
+    ErrorCode.INSTRUCTION: 'instruction error (unknown instruction, or ACTION without REG_WRITE)',
+    ErrorCode.CRC: 'CRC error (the servo received a corrupted packet)',
+    ErrorCode.DATA_RANGE: 'data range error (value outside the register range)',
+    ErrorCode.DATA_LENGTH: 'data length error (wrong number of bytes for the register)',
+    ErrorCode.DATA_LIMIT: 'data limit error (value beyond the limit register)',
+    ErrorCode.ACCESS: 'access error (read-only register, or EEPROM while torque is on)',
+}
+
+
 class Framer(Protocol):
     """
-    What the bus needs of a protocol's framing: the seam a Protocol 1.0 framer plugs into.
+    What the bus needs of a protocol: the seam a Protocol 1.0 framer plugs into.
 
     A framer encodes instruction packets and finds whole frames in received bytes; each frame
     says its id, whether its checksum held, whether it is a status packet and, if so, its error
-    byte and parameters (Frame.status). Which instructions a protocol has, and the Fast Sync
-    Read (2.0 only), stay with the callers that use them (by version). In Protocol 1.0 a
-    status packet has no instruction byte, so is_status only says a frame can be one: the bus
-    compares a frame with the packet it sent before it takes it for an answer.
+    byte and parameters (Frame.status). In Protocol 1.0 a status packet has no instruction
+    byte, so is_status only says a frame can be one: the bus compares a frame with the packet
+    it sent before it takes it for an answer.
+
+    Everything else the bus does differently by protocol is a fact or a method here, so the
+    bus asks the framer rather than its version: the instructions a protocol has (sync read,
+    the fast reads, broadcast ping, CLEAR, a reset's options), how an address and a length are
+    written (2.0: two bytes each; 1.0: one, and what does not fit is refused: BadRequest), how
+    a ping's answer gives the model number, how an error byte reads. The instruction codes the
+    bus sends in both (PING, READ, WRITE, FACTORY_RESET/RESET, REBOOT, SYNC_WRITE, BULK_READ)
+    are the same bytes in both protocols.
     """
 
-    version: int                # the protocol's major version: 1 or 2
+    version: int                # the protocol's major version: 1 or 2 (for messages)
     status_overhead: int        # bytes of a status packet around its parameters
     refusal_mask: int           # error byte bits that say the instruction was refused
     alert_mask: int             # error byte bits that report a hardware error (not a refusal)
     ping_reply_params: int      # parameters of a ping's answer (2.0: model number, firmware)
+    # Where the model number (2 bytes) is read when a ping's answer does not carry it (1.0:
+    # address 0); None: the answer carries it.
+    model_number_address: int | None
+    broadcast_ping: bool        # every servo answers a ping to the broadcast id
+    sync_read: bool             # SYNC_READ exists (1.0 has BULK_READ only)
+    fast_read: bool             # FAST_SYNC_READ and FAST_BULK_READ exist
+    multi_turn_clear: bool      # CLEAR exists (the multi-turn count's reset)
+    # Our own packets coming back (the local echo) look like status packets: the bus keeps the
+    # last few it sent, so a late echo of one is never taken for an answer.
+    echo_like_status: bool
+    # Its status packets have the layout the bus's whole-block parses compare byte for byte
+    # (group_reads.BlockTemplate, the clean parse of a sync or bulk read): 2.0's.
+    clean_block: bool
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -478,6 +510,29 @@ class Framer(Protocol):
     def scan(self, buffer: bytes | bytearray, pos: int, max_length: int,
              final: bool) -> tuple[list[Frame], int]:
         """Return the whole frames in buffer from pos on, and where unconsumed bytes begin."""
+
+    def error_text(self, code: int) -> str:
+        """Return what the refusal bits of an error byte say, for a person."""
+
+    def address_param(self, address: int, length: int, other_params: int = 0) -> bytes:
+        """Return the address parameter of an access of length bytes (BadRequest: unreachable)."""
+
+    def address_length(self, address: int, length: int) -> bytes:
+        """Return the address and length parameters of an access (BadRequest: unreachable)."""
+
+    def fit_read(self, address: int, length: int, before: int, extra: int) -> tuple[int, int]:
+        """
+        Return (before, extra) cut so a widened read stays inside what the protocol reaches.
+
+        The read of length bytes at address is widened by extra bytes, before of them ahead of
+        address (the bus's length tag); BadRequest when the read itself is out of reach.
+        """
+
+    def bulk_read_params(self, records: Sequence[tuple[int, int, int]]) -> bytes:
+        """Return the parameters of a BULK_READ of (id, address, length) records."""
+
+    def reset_params(self, option: int) -> bytes | None:
+        """Return the parameters of a FACTORY_RESET with option; None: the protocol has none."""
 
 
 class Protocol2Framer:
@@ -488,6 +543,13 @@ class Protocol2Framer:
     refusal_mask = ERROR_CODE_MASK
     alert_mask = ALERT_BIT
     ping_reply_params = 3
+    model_number_address: int | None = None
+    broadcast_ping = True
+    sync_read = True
+    fast_read = True
+    multi_turn_clear = True
+    echo_like_status = False    # a status has instruction 0x55: no packet we send has
+    clean_block = True
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -497,6 +559,33 @@ class Protocol2Framer:
              final: bool) -> tuple[list[Frame], int]:
         """Return the whole frames in buffer from pos on (scan_frames with resync)."""
         return scan_frames(buffer, pos, max_length=max_length, final=final)
+
+    def error_text(self, code: int) -> str:
+        """Return the ErrorCode's text (ERROR_TEXT), or the code's number for another."""
+        return ERROR_TEXT.get(code, str(code))
+
+    def address_param(self, address: int, length: int, other_params: int = 0) -> bytes:
+        """Return the address in two bytes (every access fits: nothing is checked)."""
+        return struct.pack('<H', address)
+
+    def address_length(self, address: int, length: int) -> bytes:
+        """Return the two-byte address and the two-byte length."""
+        return struct.pack('<HH', address, length)
+
+    def fit_read(self, address: int, length: int, before: int, extra: int) -> tuple[int, int]:
+        """Return (before, extra) as they are: two-byte fields hold every widened read."""
+        return before, extra
+
+    def bulk_read_params(self, records: Sequence[tuple[int, int, int]]) -> bytes:
+        """Return id, address (2 bytes), length (2 bytes) of each record (FAST_BULK_READ's too)."""
+        params = bytearray()
+        for servo_id, address, length in records:
+            params += struct.pack('<BHH', servo_id, address, length)
+        return bytes(params)
+
+    def reset_params(self, option: int) -> bytes | None:
+        """Return the option byte (0xFF all, 0x01 all but the id, 0x02 but id and baud)."""
+        return bytes((option,))
 
 
 PROTOCOL_2 = Protocol2Framer()

@@ -21,8 +21,9 @@ Two things differ from Protocol 2.0 and shape this module:
 
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Dict
+from typing import Dict, Sequence
 
+from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.protocol import Frame, Packet, StreamParser
 
 HEADER = b'\xff\xff'
@@ -36,6 +37,10 @@ MAX_PARAMS = MAX_LENGTH - 2
 STATUS_OVERHEAD = 6         # header 2, id, length, error, checksum
 INSTRUCTION_OVERHEAD = 6    # header 2, id, length, instruction, checksum
 READ_PACKET_SIZE = INSTRUCTION_OVERHEAD + 2   # READ: address, length
+# Where the model number (2 bytes) is: a ping's status does not carry it.
+MODEL_NUMBER_ADDRESS = 0
+# The one option of RESET: the whole control table (it has no parameter).
+RESET_ALL = 0xFF
 
 
 class Instruction1(IntEnum):
@@ -84,6 +89,14 @@ _UNUSED_BIT = 0x80
 def error_text(error: int) -> str:
     """Return the names of the bits set in an error byte, joined (empty for none)."""
     return ', '.join(name for bit, name in ERROR_BIT_NAMES.items() if error & bit)
+
+
+def check_reach(address: int, length: int, other_params: int = 0) -> None:
+    """Refuse an access Protocol 1.0 cannot express: one-byte addresses, 253 parameters."""
+    if (address < 0 or length < 1 or address + length > MAX_ADDRESS + 1
+            or length + other_params > MAX_PARAMS):
+        raise BadRequest(f'{length} bytes at address {address}: Protocol 1.0 reaches addresses '
+                         f'0..{MAX_ADDRESS} only, {MAX_PARAMS} parameters a packet')
 
 
 def checksum(body: bytes | bytearray) -> int:
@@ -222,6 +235,13 @@ class Protocol1Framer:
     refusal_mask = int(REFUSAL_MASK)
     alert_mask = int(ALERT_MASK)
     ping_reply_params = 0       # a 1.0 ping's status carries nothing: the model is read
+    model_number_address: int | None = MODEL_NUMBER_ADDRESS
+    broadcast_ping = False
+    sync_read = False           # BULK_READ instead
+    fast_read = False
+    multi_turn_clear = False
+    echo_like_status = True     # a status has no instruction byte (module docstring)
+    clean_block = False
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -231,6 +251,40 @@ class Protocol1Framer:
              final: bool) -> tuple[list[Frame], int]:
         """Return the whole frames in buffer from pos on (scan_frames with resync)."""
         return scan_frames(buffer, pos, max_length=min(max_length, MAX_LENGTH), final=final)
+
+    def error_text(self, code: int) -> str:
+        """Return the names of the error bits set (error_text)."""
+        return error_text(code)
+
+    def address_param(self, address: int, length: int, other_params: int = 0) -> bytes:
+        """Return the one-byte address; BadRequest for an access 1.0 cannot express."""
+        check_reach(address, length, other_params)
+        return bytes((address,))
+
+    def address_length(self, address: int, length: int) -> bytes:
+        """Return the one-byte address and length; BadRequest for what does not fit them."""
+        check_reach(address, length)
+        return bytes((address, length))
+
+    def fit_read(self, address: int, length: int, before: int, extra: int) -> tuple[int, int]:
+        """Return (before, extra) cut to addresses 0..255 and 253 parameters a read."""
+        check_reach(address, length)
+        extra = min(extra, MAX_PARAMS - length)
+        room = MAX_ADDRESS + 1 - address - length
+        before = min(address, extra, max(before, extra - room))
+        return before, min(extra, before + room)
+
+    def bulk_read_params(self, records: Sequence[tuple[int, int, int]]) -> bytes:
+        """Return 0x00, then length, id, address of each record (the e-manual's layout)."""
+        params = bytearray((0x00,))
+        for servo_id, address, length in records:
+            check_reach(address, length)
+            params += bytes((length, servo_id, address))
+        return bytes(params)
+
+    def reset_params(self, option: int) -> bytes | None:
+        """Return no parameter for option 0xFF (RESET resets everything); None for another."""
+        return b'' if option == RESET_ALL else None
 
 
 PROTOCOL_1 = Protocol1Framer()

@@ -47,7 +47,18 @@ class RawPort(Protocol):
 
     A port raises PortError (or, the simulator's, an OSError) when the device is gone; the bus
     turns either into PortError.
+
+    `paced` and `waited` are what a device says of its timing; they are read through
+    port_paced() and port_waited(), which give a port that does not declare them (the
+    simulator's ports, a test's wrapper) this protocol's defaults: not paced, never waited.
     """
+
+    # Its bytes come at wire speed, never sooner (a device): a reader may sleep until they can
+    # be there. A port that answers inside write() (the simulator's) is not paced.
+    paced: bool = False
+    # Whether the last read had to wait for its bytes (they were not all there when it began);
+    # asked of a paced port only.
+    waited: bool = False
 
     @property
     def baudrate(self) -> int:
@@ -72,6 +83,16 @@ class RawPort(Protocol):
 
     def close(self) -> None:
         """Release the port."""
+
+
+def port_paced(port: RawPort) -> bool:
+    """Return whether port's bytes come at wire speed (RawPort.paced, its default if unsaid)."""
+    return bool(getattr(port, 'paced', RawPort.paced))
+
+
+def port_waited(port: RawPort) -> bool:
+    """Return whether port's last read waited for its bytes (RawPort.waited, or its default)."""
+    return bool(getattr(port, 'waited', RawPort.waited))
 
 
 class SerialPort:

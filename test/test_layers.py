@@ -56,7 +56,7 @@ LAYERS = {
     'registers.py': 2,
     'transports.py': 2, 'trajectory.py': 2, 'commands.py': 2,
     'gripper.py': 2,
-    'bus.py': 1, 'serial_port.py': 1,
+    'bus.py': 1, 'wire.py': 1, 'transactions.py': 1, 'group_reads.py': 1, 'serial_port.py': 1,
     'protocol.py': 0, 'protocol1.py': 0, 'errors.py': 0, 'models': 0, 'termios2.py': 0,
     'timerslack.py': 0,
 }

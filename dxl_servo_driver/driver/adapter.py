@@ -18,16 +18,16 @@ force) rather than refusing to start.
 """
 
 import math
-from typing import Optional, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
-from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S
+from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, MAX_DEADLINE_SLACK_S
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import Servo
 from dxl_servo_driver.serial_port import adapter_latency_timer_ms
 
 # Pings timed (of the first servos that answer): the largest delay is taken, since an FTDI
 # chip hands its buffer over anywhere from at once to a whole timer after the data came.
-TIMED_PINGS = 3
+TIMED_PINGS = 5
 # Servos tried for an answer before giving up on timing (a silent one costs a whole listen).
 SERVOS_TRIED = 3
 # What the host's wake-up and the servos' Return Delay Time (500 us from the factory) may add to
@@ -56,7 +56,8 @@ def settle_latency_timer(ctx: Context, servos: Sequence[Servo]) -> None:
     timed = _time_replies(bus, servos)
     if timed is None:
         return
-    servo, delay_s = timed
+    servo, delays = timed
+    delay_s = max(delays)
     allowed_s = bus.latency_timer_s + WAKE_ALLOWANCE_S + DEADLINE_SLACK_S / 2
     if delay_s <= allowed_s:
         return
@@ -64,6 +65,10 @@ def settle_latency_timer(ctx: Context, servos: Sequence[Servo]) -> None:
     # file's.
     implied_ms = max(declared_ms, float(math.ceil((delay_s - WAKE_ALLOWANCE_S) * 1000.0)))
     bus.latency_timer_s = implied_ms / 1000.0
+    # Answers that came this far apart will again: the deadlines' slack starts wide enough for
+    # that spread (the bus narrows it again once nothing comes late for long).
+    spread_s = delay_s - min(delays)
+    bus.slack_s = min(MAX_DEADLINE_SLACK_S, max(bus.slack_s, DEADLINE_SLACK_S + spread_s))
     late_ms = delay_s * 1000.0 - declared_ms
     ctx.log.warn(f'replies arrive ~{late_ms:.0f} ms late (id {servo.servo_id} answered '
                  f'{delay_s * 1000.0:.1f} ms after its wire time, where latency_timer is '
@@ -72,15 +77,15 @@ def settle_latency_timer(ctx: Context, servos: Sequence[Servo]) -> None:
                  f'{implied_ms:g} ms.')
 
 
-def _time_replies(bus: Bus, servos: Sequence[Servo]) -> Optional[Tuple[Servo, float]]:
-    """Return the first servo that answers and its largest ping delay; None if none does."""
+def _time_replies(bus: Bus, servos: Sequence[Servo]) -> Optional[Tuple[Servo, List[float]]]:
+    """Return the first servo that answers and its pings' delays; None if none does."""
     for servo in list(servos)[:SERVOS_TRIED]:
-        delays = []
+        delays: List[float] = []
         for _ in range(TIMED_PINGS):
             delay_s = bus.reply_delay(servo.servo_id)
             if delay_s is None:
                 break
             delays.append(delay_s)
         if delays:
-            return servo, max(delays)
+            return servo, delays
     return None

@@ -1,0 +1,438 @@
+"""
+The bus's middle layer: the one-off transactions of one port, over its wire (wire.py).
+
+Each transaction here is one request and its answer, or none (a sync write, a sweep's pings):
+ping, read, write, reboot, CLEAR, factory reset, sync write, the adapter's reply delay, a ping
+sweep and the broadcast ping. Every one with one servo goes out in that servo's protocol
+(Wire.speak; the _to_servo decorator), and what differs between the protocols (one-byte
+addresses and their reach, a ping's answer without the model number, the instructions 1.0 does
+not have, the error byte's meaning) is the framer's to say (protocol.Framer), never a branch on
+its version here. The wire is reached through _send, _read, _collect, reply_timeout_s and
+mark_dirty (and the state they keep: the lock, the framer in force, the echo, the counters).
+
+A status packet does not say which request it answers: a one-off read is tagged by its length
+(Transactions.read) and, for values that do not change by themselves, confirmed by a second.
+The transactions never retry on their own; the caller decides what a failure means.
+"""
+
+from dataclasses import dataclass, field
+import functools
+import time
+from typing import (
+    Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Tuple, TypeVar, Union)
+
+from dxl_servo_driver.errors import (
+    BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
+from dxl_servo_driver.models import Item
+from dxl_servo_driver.protocol import (
+    BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, Frame, Framer, Instruction, MAX_ID,
+    PROTOCOL_2, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
+from dxl_servo_driver.serial_port import RawPort
+from dxl_servo_driver.wire import ANSWER, CORRUPT, ECHO, port_lost, Request, STRAY, Wire
+
+# One-off reads differ in length over this many consecutive requests (see Transactions.read).
+READ_TAGS = 8
+# A confirmed read tries this many times more to get two equal answers in a row.
+CONFIRM_ATTEMPTS = 3
+PING_REPLY_PARAMS = 3          # model number (2), firmware version (1): Protocol 2.0's
+# A ping sweep (Bus.ping_sweep) sends each ping once the one before could have been answered on
+# the wire (request, the longest Return Delay Time, answer) and this margin more: the USB
+# adapter's transmit jitter, so that a ping never goes out over the answer before it.
+SWEEP_MARGIN_S = 1e-3
+# How long past its wire time Bus.reply_delay listens for a ping's answer: longer than any
+# adapter's latency timer in use (Linux's FTDI default is 16 ms, its maximum 255 ms).
+LATENCY_LISTEN_S = 0.3
+# The SDK's broadcast ping wait: every id may answer, 3 ms apart (ROBOTIS' figure).
+BROADCAST_PING_PER_ID_S = 0.003
+
+
+@dataclass
+class Sweep:
+    """What a ping sweep heard (Bus.ping_sweep)."""
+
+    answered: List[int] = field(default_factory=list)   # ids whose answer came whole
+    garbled: List[int] = field(default_factory=list)    # ids whose answer failed its checksum
+    noise: int = 0          # frames or bytes that were nobody's: a collision, a noisy line
+    echoed: int = 0         # pings the adapter echoed
+
+
+Method = TypeVar('Method', bound=Callable[..., Any])
+
+
+def sweep_spacing_s(baud_bps: int, framer: Framer) -> float:
+    """Return the time between two pings of a sweep (Bus.ping_sweep) at a baud rate."""
+    ping = len(framer.encode(MAX_ID, Instruction.PING))
+    answer = framer.status_overhead + framer.ping_reply_params
+    return (ping + answer) * BITS_PER_BYTE / baud_bps + 254 * RETURN_DELAY_UNIT_S + SWEEP_MARGIN_S
+
+
+def broadcast_ping_s(baud_bps: int) -> float:
+    """Return how long a broadcast ping waits beyond the latency timer (Bus.broadcast_ping)."""
+    answer = STATUS_OVERHEAD + PING_REPLY_PARAMS
+    ping = len(PROTOCOL_2.encode(BROADCAST_ID, Instruction.PING))
+    return ((ping + answer * (MAX_ID + 1)) * BITS_PER_BYTE / baud_bps
+            + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
+
+
+def _heard(frames: Sequence[Frame], requests: Dict[int, Request], leftover: int) -> Sweep:
+    """Sort a ping sweep's frames into answers, garbled answers and noise."""
+    sweep = Sweep(noise=leftover)
+    echoes: Dict[int, int] = {}
+    for frame in frames:
+        request = requests.get(frame.servo_id)
+        kind = request.classify(frame) if request is not None else STRAY
+        if kind == ECHO and echoes.get(frame.servo_id) and frame.is_status:
+            # Protocol 1.0: an answer may be our ping byte for byte; the echo comes first.
+            kind = request.classify_status(frame) if request is not None else STRAY
+        if kind == ANSWER:
+            sweep.answered.append(frame.servo_id)
+        elif kind == ECHO:
+            echoes[frame.servo_id] = echoes.get(frame.servo_id, 0) + 1
+        elif kind == CORRUPT:
+            sweep.garbled.append(frame.servo_id)
+        else:
+            sweep.noise += 1
+    sweep.echoed = len(echoes)
+    if sweep.echoed <= len(requests) // 2:
+        # The adapter does not echo: a lone copy of a ping is its servo's answer.
+        sweep.answered += [servo_id for servo_id in echoes if servo_id not in sweep.answered]
+    sweep.answered = sorted(set(sweep.answered))
+    sweep.garbled = sorted(set(sweep.garbled) - set(sweep.answered))
+    return sweep
+
+
+def _to_servo(method: Method) -> Method:
+    """Run a transaction with one servo in that servo's protocol (Wire.speak)."""
+    @functools.wraps(method)
+    def speaking(bus: 'Transactions', servo_id: int, *args: Any, **kwargs: Any) -> Any:
+        with bus.speaking(bus.framer_for(servo_id)):
+            return method(bus, servo_id, *args, **kwargs)
+    return cast(Method, speaking)
+
+
+class Transactions(Wire):
+    """
+    The one-off transactions of one port, over its wire. Thread-safe: one at a time.
+
+    An extension of Wire rather than a holder of one: see Wire. The group reads extend this in
+    turn (group_reads.GroupReads), for the answers' reading (_answer, _missing) they share.
+    """
+
+    def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
+                 return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
+        super().__init__(port, baud_bps, latency_timer_s, return_delay_s, framer)
+        self._read_tag = 0
+
+    # answers -------------------------------------------------------------------------------
+    def _missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
+                 silent_text: str) -> CommError:
+        """Count and return why a servo has no answer: corrupt or silent."""
+        if corrupt:
+            self.counters.corrupt += 1
+            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
+        self.counters.timeouts += 1
+        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
+
+    def _answer(self, servo_id: int, error: int, data: bytes,
+                what: str) -> Union[bytes, StatusError]:
+        """Return an answer's data, or the StatusError its error byte says (counted)."""
+        framer = self.framer
+        code = error & framer.refusal_mask
+        if not code:
+            return data
+        self.counters.status_errors += 1
+        return StatusError(f'id {servo_id}: {what} refused: {framer.error_text(code)}',
+                           servo_id, code, bool(error & framer.alert_mask))
+
+    def alert(self, error: int) -> bool:
+        """Return whether a status error byte reports a hardware error (the alert)."""
+        return bool(error & self.framer.alert_mask)
+
+    def _refuse_unless(self, exists: bool, what: str, instead: str) -> None:
+        """Refuse an instruction the protocol in force does not have (BadRequest)."""
+        if not exists:
+            raise BadRequest(f'{what} does not exist in Protocol {self.framer.version}.0 '
+                             f'({instead})')
+
+    # one-off transactions ------------------------------------------------------------------
+    @_to_servo
+    def transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
+                 what: str) -> bytes:
+        """
+        Send one instruction to one servo and return the parameters of its status packet.
+
+        Only a status packet from servo_id whose parameter count is reply_params answers (an
+        error status may carry none); StatusError when it carries an error code, CommTimeout
+        when none came by the deadline, CorruptReply when the only one failed its CRC.
+        """
+        return self._transact(servo_id, instruction, params, reply_params, what, None)[0]
+
+    def _transact(self, servo_id: int, instruction: int, params: bytes, reply_params: int,
+                  what: str, linger: Optional[bool], probe: bool = False) -> Tuple[bytes, float]:
+        """
+        Return (reply parameters, time the request went out); linger None: if dirty.
+
+        With probe, silence is an answer too (a servo booting, or not there): a missing reply
+        alone does not make the bus suspicious. A late one is still refused by its length.
+        """
+        request = self._request(self.framer.encode(servo_id, instruction, params), (servo_id,),
+                                reply_params)
+        with self.lock:
+            if linger is None:
+                linger = self.dirty
+            sent_s, written_s = self._send(request.packet)
+            reply_size = self.framer.status_overhead + reply_params
+            deadline = written_s + self.reply_timeout_s(reply_size, 1, len(request.packet))
+            want = reply_size + (len(request.packet) if self.echo else 0)
+            buffer = bytearray(self._read(want, deadline))
+            collected = self._collect(request, deadline, buffer, linger,
+                                      lambda found: servo_id in found.answers)
+            self._note_echo(collected.echoed, servo_id in collected.answers)
+            if collected.anomalies:
+                self.mark_dirty()
+            answer = collected.answers.get(servo_id)
+            if answer is None:
+                if not probe or collected.anomalies:
+                    self.mark_dirty()
+                if collected.corrupt:
+                    self.counters.corrupt += 1
+                    raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
+                                       servo_id)
+                self.counters.timeouts += 1
+                version = self.framer.version
+                hint = (' (only replies that did not answer it came back)' if collected.discarded
+                        else f' (check the id, the baud rate, Protocol {version}.0, the servo '
+                        'power and the adapter latency timer)')
+                raise CommTimeout(f'id {servo_id}: no status packet for {what} at '
+                                  f'{self.baud_bps} bps{hint}', servo_id)
+            _, error, data = answer
+            result = self._answer(servo_id, error, data, what)
+            if isinstance(result, StatusError):
+                raise result
+            return result, sent_s
+
+    @_to_servo
+    def ping(self, servo_id: int, probe: bool = False) -> int:
+        """
+        Return the model number of the servo; raise when it does not answer.
+
+        probe: its silence is expected now and then (a booting servo, a scan), so it does not
+        make the bus suspicious of the transactions that follow.
+        """
+        framer = self.framer
+        data = self._transact(servo_id, Instruction.PING, b'', framer.ping_reply_params, 'ping',
+                              None, probe)[0]
+        if framer.model_number_address is not None:
+            # The answer carries no model number (Protocol 1.0): it is read.
+            data = self.read_fresh(servo_id, framer.model_number_address, 2)[0]
+        return data[0] | (data[1] << 8)
+
+    @_to_servo
+    def reply_delay(self, servo_id: int, listen_s: float = LATENCY_LISTEN_S) -> Optional[float]:
+        """
+        Return how long after its wire time a ping's answer came (s); None if none came.
+
+        The deadline is listen_s, not the latency timer in force: this is how an adapter's
+        real latency is measured where the OS does not say it (a pty, a non-FTDI adapter). The
+        delay holds the servo's Return Delay Time and the host's wake-up too.
+        """
+        framer = self.framer
+        request = self._request(framer.encode(servo_id, Instruction.PING), (servo_id,),
+                                framer.ping_reply_params)
+        reply_size = framer.status_overhead + framer.ping_reply_params
+        with self.lock:
+            _, written_s = self._send(request.packet)
+            due_s = written_s + self.byte_time_s(len(request.packet) + reply_size)
+            deadline = due_s + listen_s
+            want = reply_size + (len(request.packet) if self.echo else 0)
+            buffer = bytearray(self._read(want, deadline, to_deadline=True))
+            collected = self._collect(request, deadline, buffer, False,
+                                      lambda found: servo_id in found.answers)
+            came_s = time.monotonic()
+            self._note_echo(collected.echoed, servo_id in collected.answers)
+            if servo_id not in collected.answers:
+                if collected.anomalies:
+                    self.mark_dirty()
+                return None
+            return max(0.0, came_s - due_s)
+
+    def ping_sweep(self, ids: Sequence[int], framer: Framer) -> Sweep:
+        """
+        Ping every id in turn without waiting for each answer; return who answered.
+
+        Each ping goes out once the one before could have been answered on the wire, and the
+        answers are read once, after the last: a sweep of 253 ids waits the adapter's latency
+        timer once, not 253 times (Protocol 1.0 has no broadcast ping). What it finds are
+        candidates: the caller pings each again alone. Noise says the sweep cannot be trusted
+        (answers collided), and the caller then pings every id alone.
+        """
+        reply_size = framer.status_overhead + framer.ping_reply_params
+        requests = {servo_id: Request(framer.encode(servo_id, Instruction.PING), (servo_id,),
+                                      framer.ping_reply_params, refusal_mask=framer.refusal_mask)
+                    for servo_id in ids}
+        longest = max((len(request.packet) for request in requests.values()), default=0)
+        spacing_s = sweep_spacing_s(self.baud_bps, framer)
+        buffer = bytearray()
+        with self.speaking(framer):
+            # The pings go out back to back, not through _send: one flush for all of them.
+            self._flush()
+            due_s = time.monotonic()
+            for request in requests.values():
+                wait_s = due_s - time.monotonic()
+                if wait_s > 0.0:
+                    time.sleep(wait_s)
+                try:
+                    self.port.write(request.packet)
+                    waiting = self.port.in_waiting
+                    if waiting:
+                        buffer += self.port.read(waiting, 0.0)
+                except OSError as exc:
+                    raise port_lost(exc) from None
+                due_s = time.monotonic() + spacing_s
+            deadline = due_s + self.latency_timer_s + self.slack_s
+            buffer += self._read(len(requests) * (longest + reply_size), deadline,
+                                 to_deadline=True)
+            frames, end = framer.scan(
+                buffer, 0, max(2 * (framer.ping_reply_params + 4) + 8, longest), True)
+        return _heard(frames, requests, len(buffer) - end)
+
+    def broadcast_ping(self) -> Dict[int, int]:
+        """Return {id: model number} of every servo that answers a broadcast ping (2.0 only)."""
+        self._refuse_unless(self.framer.broadcast_ping, 'broadcast ping',
+                            'ping the ids one by one')
+        request = Request(self.framer.encode(BROADCAST_ID, Instruction.PING),
+                          tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS)
+        with self.lock:
+            _, written_s = self._send(request.packet)
+            # Every id may answer: the replies are read to the deadline.
+            deadline = (written_s + broadcast_ping_s(self.baud_bps) + self.latency_timer_s
+                        + self.slack_s)
+            collected = self._collect(request, deadline, bytearray(), True, lambda found: False)
+            self._note_echo(collected.echoed, bool(collected.answers))
+        return {servo_id: data[0] | (data[1] << 8)
+                for servo_id, (_, error, data) in collected.answers.items()
+                if len(data) == PING_REPLY_PARAMS}
+
+    @_to_servo
+    def read(self, servo_id: int, address: int, length: int, confirm: bool = True) -> bytes:
+        """
+        Return length bytes of the servo's control table from address.
+
+        A status packet does not say which request it answers, and a reply that comes late
+        (a frozen adapter) has the id and often the length the next read of that servo
+        expects. So consecutive one-off reads ask for a few bytes more each (before the
+        register where the table has room, after it otherwise; reserved addresses read as
+        zero): the reply's length tells most late replies from the answer. With confirm (for
+        values that do not change by themselves) a second read must agree, which catches the
+        rest; changing values are read with read_fresh() and dated by the caller.
+        """
+        data = self.read_fresh(servo_id, address, length)[0]
+        if not confirm:
+            return data
+        for _ in range(CONFIRM_ATTEMPTS):
+            again = self.read_fresh(servo_id, address, length)[0]
+            if again == data:
+                return data
+            self.counters.stale += 1
+            self.mark_dirty()
+            data = again
+        raise CorruptReply(f'id {servo_id}: read of {length} bytes at {address}: replies '
+                           'disagree (late replies on the bus?)', servo_id)
+
+    @_to_servo
+    def read_fresh(self, servo_id: int, address: int, length: int) -> Tuple[bytes, float]:
+        """Return (data, time the request went out) of one length-tagged read (see read())."""
+        self._read_tag = (self._read_tag + 1) % READ_TAGS
+        # The tag (extra bytes, before of them ahead of the register) stays inside what the
+        # protocol reaches (Protocol 1.0: address 255, 253 bytes a read).
+        before, extra = self.framer.fit_read(address, length, min(self._read_tag, address),
+                                             self._read_tag)
+        data, sent_s = self._transact(servo_id, Instruction.READ,
+                                      self._address_length(address - before, length + extra),
+                                      length + extra, f'read of {length} bytes at {address}',
+                                      None)
+        return data[before:before + length], sent_s
+
+    @_to_servo
+    def read_dated(self, servo_id: int, address: int, length: int,
+                   linger: Optional[bool] = False) -> Tuple[bytes, float]:
+        """
+        Return (data, time the request went out) of a read whose data the caller dates itself.
+
+        For the state block's tagged reads (the Realtime Tick tells a late reply): no reading
+        on to the deadline when the bus is suspicious (linger None: then it does, for a sample
+        that carries no tick).
+        """
+        return self._transact(servo_id, Instruction.READ, self._address_length(address, length),
+                              length, f'read of {length} bytes at {address}', linger)
+
+    @_to_servo
+    def write(self, servo_id: int, address: int, data: bytes) -> None:
+        """Write bytes to the servo's control table at address, and check the status."""
+        params = self.framer.address_param(address, len(data), 1) + bytes(data)
+        self.transact(servo_id, Instruction.WRITE, params, 0,
+                      f'write of {len(data)} bytes at {address}')
+
+    def read_item(self, servo_id: int, item: Item) -> int:
+        """Return one control-table item's value."""
+        data = self.read(servo_id, item.address, item.size)
+        return item.decode(data)
+
+    def write_item(self, servo_id: int, item: Item, value: int) -> None:
+        """Write one control-table item."""
+        self.write(servo_id, item.address, item.encode(value))
+
+    @_to_servo
+    def reboot(self, servo_id: int) -> None:
+        """Send REBOOT and check the servo acknowledged it."""
+        # The status of a REBOOT may carry the alert bit of the error being cleared.
+        self.transact(servo_id, Instruction.REBOOT, b'', 0, 'reboot')
+
+    @_to_servo
+    def clear_multi_turn(self, servo_id: int) -> None:
+        """Send CLEAR: present position back within one turn (the servo must be still)."""
+        self._refuse_unless(self.framer.multi_turn_clear, 'CLEAR', 'no multi-turn clear')
+        self.transact(servo_id, Instruction.CLEAR, CLEAR_MULTI_TURN, 0, 'clear multi-turn')
+
+    @_to_servo
+    def factory_reset(self, servo_id: int, option: int) -> None:
+        """Send FACTORY_RESET with option 0xFF, 0x01 or 0x02 (1.0: RESET, 0xFF only)."""
+        params = self.framer.reset_params(option)
+        if params is None:
+            raise BadRequest(f'Protocol {self.framer.version}.0 RESET has no option '
+                             f'{option:#04x}: it resets everything (option 0xFF)', servo_id)
+        # FACTORY_RESET is 1.0's RESET (0x06).
+        self.transact(servo_id, Instruction.FACTORY_RESET, params, 0, 'factory reset')
+
+    # a broadcast without a reply -----------------------------------------------------------
+    def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]],
+                   framer: Optional[Framer] = None) -> int:
+        """Write length bytes at address on several servos with one SYNC_WRITE; return bytes."""
+        with self.speaking(framer):
+            return self._sync_write(address, length, data)
+
+    def _sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
+        params = bytearray(self._address_length(address, length))
+        for servo_id, value in data:
+            if len(value) != length:
+                raise ValueError(f'sync write of {length} bytes: id {servo_id} has {len(value)}')
+            params.append(servo_id)
+            params += value
+        packet = self.framer.encode(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
+        with self.lock:
+            if self.echo:
+                # A sync write has no reply, but an echoing adapter sends it back: take it now
+                # rather than let the next request flush it as an anomaly.
+                self._send(packet)
+                echo = self._read(len(packet), time.monotonic() + self.reply_timeout_s(
+                    0, 0, len(packet)))
+                if echo == packet:
+                    self._echo_seen()
+                else:
+                    self._echo_missing()   # what came of it, if anything, the next flush drops
+            else:
+                try:
+                    self.port.write(packet)
+                except OSError as exc:
+                    raise port_lost(exc) from None
+        return len(packet)
