@@ -94,11 +94,9 @@ EARLIER_S = 0.002
 # sample shows the value) and the same again for scheduling.
 ONE_READ_S = LATENCY_TIMER_MS / 1000.0 + 0.003
 REPLY_WINDOW_S = 0.9 / LOOP_RATE_HZ + 2 * ONE_READ_S + 2 * TRACE_PERIOD_S
-# A sample newer than its stamp by more than the window is not stale, just late-stamped (the
-# node was not scheduled between its stamp and its request): counted and reported, not failed.
-LATE_STAMP_S = 0.5
 
-# Liveness. Away from an unplug, joint_states never pause this long.
+# Liveness. Away from an unplug, joint_states never pause this long at the loop rate (a busy
+# machine that runs the node slower stretches it as much: run_chaos).
 MAX_GAP_S = 2.0
 # After a replug: the node retries its port every 1 s, then pings and reads every servo again
 # (restoring the ones that lost power) under whatever faults are on.
@@ -274,13 +272,17 @@ class BusReport:
     servos: Dict[str, Dict[str, str]]
 
 
+# A joint_states message as kept: stamp, names, positions, and when it arrived here (wall).
+Sample = Tuple[float, Tuple[str, ...], Tuple[float, ...], float]
+
+
 class Recorder:
     """Every joint_states and /diagnostics message of the node, kept whole for the analysis."""
 
     def __init__(self, client: Client, port: str) -> None:
         self._lock = threading.Lock()
         self._port = port
-        self.joint_states: List[Tuple[float, Tuple[str, ...], Tuple[float, ...]]] = []
+        self.joint_states: List[Sample] = []
         self.diagnostics: List[BusReport] = []
         client.node.create_subscription(JointState, '/joint_states', self._on_joint_states, 100)
         client.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
@@ -289,7 +291,7 @@ class Recorder:
     def _on_joint_states(self, msg: JointState) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         with self._lock:
-            self.joint_states.append((stamp, tuple(msg.name), tuple(msg.position)))
+            self.joint_states.append((stamp, tuple(msg.name), tuple(msg.position), time.time()))
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
@@ -305,8 +307,7 @@ class Recorder:
             with self._lock:
                 self.diagnostics.append(bus)
 
-    def snapshot(self) -> Tuple[List[Tuple[float, Tuple[str, ...], Tuple[float, ...]]],
-                                List[BusReport]]:
+    def snapshot(self) -> Tuple[List[Sample], List[BusReport]]:
         """Return copies of what was recorded so far."""
         with self._lock:
             return list(self.joint_states), list(self.diagnostics)
@@ -317,7 +318,7 @@ class Recorder:
         while True:
             with self._lock:
                 if any(stamp > after and names == NAMES
-                       for stamp, names, _ in self.joint_states[-100:]):
+                       for stamp, names, _, _ in self.joint_states[-100:]):
                     return
             node.alive()
             assert time.monotonic() < deadline, (
@@ -395,12 +396,10 @@ class Staleness:
     stale: List[str] = dataclasses.field(default_factory=list)
 
 
-def check_samples(trace: Trace,
-                  joint_states: Sequence[Tuple[float, Tuple[str, ...], Tuple[float, ...]]]
-                  ) -> Staleness:
+def check_samples(trace: Trace, joint_states: Sequence[Sample]) -> Staleness:
     """Compare every published position with what the servo held around its stamp."""
     result = Staleness()
-    for stamp, names, positions in joint_states:
+    for stamp, names, positions, arrived in joint_states:
         for name, position in zip(names, positions):
             servo_id = IDS[name]
             # The node keeps no turns in position mode (single turn): there, the very value.
@@ -410,7 +409,11 @@ def check_samples(trace: Trace,
             if trace.matches(servo_id, pulses, stamp - EARLIER_S, stamp + REPLY_WINDOW_S,
                              exact):
                 continue
-            if trace.matches(servo_id, pulses, stamp - EARLIER_S, stamp + LATE_STAMP_S, exact):
+            # Newer than the window is not stale, just late-stamped (the node was not scheduled
+            # between its stamp and its request): counted and reported, not failed. It was
+            # taken before its message arrived here, whatever a busy machine did meanwhile.
+            if trace.matches(servo_id, pulses, stamp - EARLIER_S,
+                             max(arrived, stamp + REPLY_WINDOW_S), exact):
                 result.late_stamped += 1
                 continue
             age = trace.age(servo_id, pulses, stamp, exact)
@@ -586,11 +589,19 @@ def run_chaos(duration_s: float, workdir: pathlib.Path, rig: Rig, client: Client
             rig.adapter.check()
             tick += 1.0 / COMMAND_HZ
             time.sleep(max(0.0, tick - time.monotonic()))
-        # Every servo restored and published again, torque back on where it was cut.
+        # Every servo restored and published again, torque back on where it was cut. Published
+        # is not yet restored (a power-cycled servo is read before its setup is back, one
+        # transaction a cycle): the torque is waited for too.
         recorder.wait_all_joints(node, time.time(), BACK_TIMEOUT_S)
         end_wall = time.time()
-        torque_before = {name: rig.bus.get(servo_id, 'torque_enable')
-                         for name, servo_id in IDS.items()}
+        deadline = time.monotonic() + BACK_TIMEOUT_S
+        while True:
+            torque_before = {name: rig.bus.get(servo_id, 'torque_enable')
+                             for name, servo_id in IDS.items()}
+            if set(torque_before.values()) == {1} or time.monotonic() > deadline:
+                break
+            node.alive()
+            time.sleep(0.05)
         rss.append(rss_kb(pid))
         if lose_port:
             rig.adapter.unplug()   # the port lost during the shutdown
@@ -613,6 +624,14 @@ def run_chaos(duration_s: float, workdir: pathlib.Path, rig: Rig, client: Client
                                     chaos.unplugged)
     reports = [d for d in diagnostics if start_wall - 1.0 <= d.stamp <= end_wall]
     last = reports[-1] if reports else None
+    # How much slower than its loop rate the node ran (the machine's share and the faults'),
+    # by its own count of cycles: pauses and the 1 Hz /diagnostics stretch as much.
+    slowdown = 1.0
+    if len(reports) >= 2:
+        span_s = reports[-1].stamp - reports[0].stamp
+        ran = (int(reports[-1].values.get('cycles', '0'))
+               - int(reports[0].values.get('cycles', '0')))
+        slowdown = max(1.0, LOOP_RATE_HZ * span_s / ran) if ran > 0 else 1.0
     restarts = sum(int(s.get('restarts', '0')) for s in last.servos.values()) if last else -1
     turns = {name: s.get('turn_offset_pulses') for name, s in last.servos.items()} if last else {}
     reconnects = len(re.findall(r'port back', output))
@@ -626,7 +645,8 @@ def run_chaos(duration_s: float, workdir: pathlib.Path, rig: Rig, client: Client
         f'{staleness.checked} positions checked, '
         f'{len(staleness.stale)} stale, {staleness.late_stamped} late-stamped; events '
         f'{dict(sorted(chaos.done.items()))}; adapter faults {faults}; max gap '
-        f'{largest_gap:.2f} s ({gap_outside:.2f} s away from unplugs); RSS '
+        f'{largest_gap:.2f} s ({gap_outside:.2f} s away from unplugs); the node at 1/'
+        f'{slowdown:.1f} of its loop rate; RSS '
         f'{rss[0] / 1024:.1f} MB start, {rss[1 if len(rss) > 2 else 0] / 1024:.1f} MB after '
         f'warm-up, {rss[-1] / 1024:.1f} MB end ({growth_kb / 1024:+.1f} MB); reconnects '
         f'{reconnects} of {len(chaos.unplugged)} unplugs; restarts {restarts} of '
@@ -640,10 +660,10 @@ def run_chaos(duration_s: float, workdir: pathlib.Path, rig: Rig, client: Client
     # only be lost to an unplug).
     assert set(chaos.done) >= {kind.name for kind in KINDS} - {'freeze'}, summary
     # (a) joint_states kept coming, away from the unplug windows too.
-    assert gap_outside <= MAX_GAP_S, summary
+    assert gap_outside <= MAX_GAP_S * slowdown, summary
     # (b) the cycle never failed: active all along, no cycle error, no stall, the port lost only
     # while unplugged.
-    assert len(reports) >= duration_s / 2.0, f'too few /diagnostics: {summary}'
+    assert len(reports) >= duration_s / 2.0 / slowdown, f'too few /diagnostics: {summary}'
     for report in reports:
         where = f'/diagnostics at {report.stamp:.3f}: {report.message} {report.values}'
         assert report.values.get('lifecycle_state') == 'active', where

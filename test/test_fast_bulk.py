@@ -490,7 +490,6 @@ def test_a_misbehaving_adapter_never_yields_a_stale_or_foreign_part(
     seen: Dict[int, set] = {servo_id: set() for servo_id in IDS}
     taken = refused = 0
     for round_ in range(100):
-        sent_s = time.monotonic()
         if round_ % 3 == 2:
             result = bus.begin_bulk_read(OTHER, fast=True).collect()
             for servo_id, data in result.data.items():
@@ -509,8 +508,10 @@ def test_a_misbehaving_adapter_never_yields_a_stale_or_foreign_part(
             assert tick not in seen[servo_id], (faults, servo_id, tick)
             seen[servo_id].add(tick)
             taken += 1
-        # The next request goes out after the servos' millisecond tick has moved on.
-        while time.monotonic() < sent_s + 0.0015:
+        # The next request goes out after the servos' millisecond tick has moved on: counted
+        # from when this one was answered (it went out before that), not from before it was
+        # sent (a test thread held up before the write would send the next one too soon).
+        while time.monotonic() < received_s + 0.0015:
             time.sleep(0.0002)
     assert taken >= 100   # most reads still serve the joints
     assert sum(port.stats.as_dict().values()) > 0   # the faults did happen

@@ -8,7 +8,7 @@ from adapter_faults import FaultyPort
 from dxl_servo_driver import protocol
 from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
-from dxl_servo_driver.config import validate
+from dxl_servo_driver.config import DriverConfig, validate
 from dxl_servo_driver.driver import clock
 from dxl_servo_driver.driver.cycle import FAST_EMPTY_LIMIT
 from dxl_servo_driver.errors import CommTimeout, CorruptReply
@@ -18,6 +18,8 @@ from dxl_servo_driver.sim import servo as sim_servo
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
+from dxl_servo_driver.transports import SimTransport
+from fake_clock import FakeClock
 import pytest
 from test_manager import BAUD as RIG_BAUD, cycle_read, params, Rig, TapPort
 
@@ -195,7 +197,6 @@ def test_a_misbehaving_adapter_never_yields_a_stale_part(
     seen: Dict[int, set] = {servo_id: set() for servo_id in IDS}
     taken = refused = 0
     for _ in range(80):
-        sent_s = time.monotonic()
         result = bus.sync_read(BLOCK.read_address, BLOCK.tagged_size, IDS, fast=True)
         received_s = time.monotonic()
         for servo_id, data in result.data.items():
@@ -208,8 +209,10 @@ def test_a_misbehaving_adapter_never_yields_a_stale_part(
             assert tick not in seen[servo_id], (faults, servo_id, tick)
             seen[servo_id].add(tick)
             taken += 1
-        # The next request goes out after the servos' millisecond tick has moved on.
-        time.sleep(max(0.0, sent_s + 0.0015 - time.monotonic()))
+        # The next request goes out after the servos' millisecond tick has moved on: counted
+        # from when this one was answered (it went out before that), not from before it was
+        # sent (a test thread held up before the write would send the next one too soon).
+        time.sleep(max(0.0, received_s + 0.0015 - time.monotonic()))
     assert taken >= 80   # most reads still serve the joints
     assert sum(port.stats.as_dict().values()) > 0   # the faults did happen
     if faults.get('echo'):
@@ -217,12 +220,32 @@ def test_a_misbehaving_adapter_never_yields_a_stale_part(
 
 
 # ------------------------------------------------------------------- the driver's read_mode
-def manager_rig(firmware: Dict[int, int]) -> Rig:
+def manager_rig(firmware: Dict[int, int],
+                monkeypatch: pytest.MonkeyPatch) -> Tuple[Rig, FakeClock]:
+    """
+    Return the manager tests' rig on servos of these firmwares, and the clock it runs on.
+
+    The test's own clock (fake_clock): whether a one-off retry fits in its cycle's budget
+    (cycles(): 10 ms) is the code's to decide, not a busy machine's.
+    """
     rig = Rig()
-    rig.sim = SimBus((1, 2, 3), boot_time_s=0.02, firmware=firmware)
+    clock = FakeClock().install(monkeypatch)
+    rig.sim = SimBus((1, 2, 3), boot_time_s=0.02, firmware=firmware, clock=clock.monotonic)
     configure_servos(rig.sim, RIG_BAUD, None)
-    rig.tap = TapPort(SimPortHandler(rig.sim, 'sim', RIG_BAUD))
-    return rig
+
+    def port() -> SimPortHandler:
+        # Wire-timed: a read of what is not coming waits to its deadline on this clock (an
+        # instant port answers it at once, and a loop waiting for the clock would spin).
+        return clock.port(rig.sim, RIG_BAUD)
+    rig.tap = TapPort(port())
+
+    def open_port(_config: DriverConfig) -> SimTransport:
+        def reopen() -> TapPort:
+            rig.tap.port = port()   # as Rig.open_port: a new port on the same servos, same tap
+            return rig.tap
+        return SimTransport(rig.sim, reopen)
+    rig.open_port = open_port   # type: ignore[method-assign]
+    return rig, clock
 
 
 def fast_reads(rig: Rig) -> int:
@@ -246,9 +269,10 @@ def cycles(manager: Manager, count: int) -> List[Dict[str, bool]]:
     ('fast_sync', {}, 'fast_sync'),
 ])
 def test_read_mode_chooses_the_read_by_firmware(read_mode: str, firmware: Dict[int, int],
-                                                expected: str) -> None:
-    rig = manager_rig(firmware)
-    manager = rig.manager(validate(params(read_mode=read_mode)))
+                                                expected: str,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    rig, clock = manager_rig(firmware, monkeypatch)
+    manager = rig.manager(validate(params(read_mode=read_mode)), clock=clock.monotonic)
     manager.configure()
     manager.activate()
     try:
@@ -274,8 +298,8 @@ def test_auto_gives_fast_up_when_it_brings_nothing_back_but_servos_answer(
     # does not do it): each fast read is silent, each servo answers its one-off retry.
     monkeypatch.setitem(sim_servo._HANDLERS, protocol.Instruction.FAST_SYNC_READ,
                         lambda *args: None)
-    rig = manager_rig({})
-    manager = rig.manager(validate(params(read_mode='auto')))
+    rig, clock = manager_rig({}, monkeypatch)
+    manager = rig.manager(validate(params(read_mode='auto')), clock=clock.monotonic)
     manager.configure()
     manager.activate()
     try:
@@ -293,11 +317,12 @@ def test_auto_gives_fast_up_when_it_brings_nothing_back_but_servos_answer(
         manager.close()
 
 
-def test_forced_fast_sync_keeps_serving_a_servo_that_does_not_answer_it() -> None:
+def test_forced_fast_sync_keeps_serving_a_servo_that_does_not_answer_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     # read_mode fast_sync on a servo without it: never given up (the user asked), the servo
     # is read by its one-off retry every cycle, the others by the fast read.
-    rig = manager_rig({2: 44})
-    manager = rig.manager(validate(params(read_mode='fast_sync')))
+    rig, clock = manager_rig({2: 44}, monkeypatch)
+    manager = rig.manager(validate(params(read_mode='fast_sync')), clock=clock.monotonic)
     manager.configure()
     manager.activate()
     try:
@@ -328,17 +353,21 @@ def test_the_simulated_tick_is_current_while_the_physics_lags() -> None:
 
 
 @pytest.mark.parametrize('fast', [True, False], ids=['fast', 'sync'])
-def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> None:
+def test_a_lingering_read_puts_request_and_answer_back_in_step(
+        fast: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """
     An answer late past its deadline is taken by the next read; lingering ends that.
 
     The late answer arrives after the next request flushed the input, in place of the answer
     still on its way, and the next request would then take that one: a chain of answers one
     behind. A read that lingers to its deadline takes the last one and leaves nothing behind.
+    On the test's own clock (fake_clock): on the machine's, a test descheduled between the two
+    requests found the first answer already there (flushed), not on its way.
     """
-    sim = SimBus(IDS)
+    clock = FakeClock().install(monkeypatch)
+    sim = clock.sim(IDS)
     configure_servos(sim, BAUD, 0)
-    port = SimPortHandler(sim, 'sim', BAUD, timing='wire', latency_s=0.0)
+    port = clock.port(sim, BAUD)
     bus = Bus(port, BAUD, latency_timer_s=0.0, return_delay_s=0.0)
     for servo_id in IDS:
         bus.write(servo_id, BLOCK.indirect_map_address(), BLOCK.indirect_map_bytes())
@@ -358,7 +387,7 @@ def test_a_lingering_read_puts_request_and_answer_back_in_step(fast: bool) -> No
         return port.in_waiting
 
     # The answer to this request is left for the next. It takes the first answer still on its
-    # way when the second request flushes the input: a descheduled test can miss that, so a
-    # few tries.
-    assert any(behind(linger=False) > 0 for _ in range(5))
+    # way when the second request flushes the input.
+    assert behind(linger=False) > 0
+    port.reset_input_buffer()
     assert behind(linger=True) == 0

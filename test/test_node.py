@@ -88,6 +88,11 @@ def cycles(h: NodeHarness, count: int = 3) -> None:
         h.joint_states.wait(timeout_s=5.0)
 
 
+def stamp_s(msg: Any) -> float:
+    """Return a message's stamp: when the node read the sample it carries (wall clock)."""
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
 def status_named(array: DiagnosticArray, suffix: str) -> DiagnosticStatus:
     matches = [s for s in array.status if s.name.endswith(suffix)]
     assert len(matches) == 1, [s.name for s in array.status]
@@ -208,13 +213,21 @@ def test_servo_states_fields(h: NodeHarness) -> None:
     rest = h.servo_states.wait(lambda m: not m.servos[0].moving
                                and abs(m.servos[0].position + 1.5) < 0.02)
     assert rest.servos[0].moving_status & 0x01   # in position
-    assert rest.servos[0].position == pytest.approx(
-        pos_rad(h.reg(IDS['arm'], 'present_position')), abs=0.01)
+    # The published position is the simulator's. Not moving is not still (the horn may creep
+    # the last pulses into place): a sample taken between two reads of the register lies
+    # between them.
+    before = pos_rad(h.reg(IDS['arm'], 'present_position'))
+    asked_s = time.time()
+    later = h.servo_states.wait(lambda m: stamp_s(m) > asked_s)   # read after `before`
+    after = pos_rad(h.reg(IDS['arm'], 'present_position'))
+    assert min(before, after) - 0.01 <= later.servos[0].position <= max(before, after) + 0.01
 
 
 def test_diagnostics_bus_and_one_status_per_servo(h: NodeHarness) -> None:
-    diag = h.diagnostics.wait(timeout_s=5.0)
-    assert len(diag.status) == 1 + len(JOINTS)
+    # Once every servo was read (a busy machine may publish the first array before that, with
+    # some servos still to come), a status for each.
+    h.joint_states.wait(lambda m: len(m.name) == len(JOINTS), timeout_s=10.0)
+    diag = h.diagnostics.wait(lambda d: len(d.status) == 1 + len(JOINTS), timeout_s=10.0)
     bus = [s for s in diag.status if ' bus ' in s.name]
     assert len(bus) == 1
     values = values_of(bus[0])
@@ -457,7 +470,10 @@ def test_set_operating_mode_restores_registers_and_torque(h: NodeHarness) -> Non
     assert h.reg(sid, 'profile_velocity') == ARM_PROFILE_VELOCITY_RAW
     assert h.reg(sid, 'position_p_gain') == ARM_P_GAIN_RAW
     assert h.reg(sid, 'torque_enable') == 1
-    assert abs(h.reg(sid, 'goal_position') - h.reg(sid, 'present_position')) <= 50
+    # Goal and present position of one moment (the horn still brakes: read one after the
+    # other, they were apart by what it moved in between).
+    registers = h.sim.registers(sid)
+    assert abs(registers['goal_position'] - registers['present_position']) <= 50
 
 
 def test_set_operating_mode_keeps_torque_off(h: NodeHarness) -> None:
@@ -556,9 +572,12 @@ def test_read_register_by_name_and_by_address(h: NodeHarness) -> None:
     response = h.call('read_register', name='wheel', register_name='44')   # velocity_limit
     assert response.success, response.message
     assert response.value == WHEEL_VELOCITY_LIMIT_RAW
-    # Present Temperature is at 146 (the manual's "(144)" is a typo).
+    # Present Temperature is at 146 (the manual's "(144)" is a typo). It changes by itself (the
+    # servo warms up): the answer lies between reads of the register before and after.
+    before = h.reg(IDS['hand'], 'present_temperature')
     response = h.call('read_register', name='hand', register_name='146')
-    assert response.success and response.value == h.reg(IDS['hand'], 'present_temperature')
+    after = h.reg(IDS['hand'], 'present_temperature')
+    assert response.success and min(before, after) <= response.value <= max(before, after)
     assert h.call('set_velocity', name=['wheel'], value=[-1.0]).success   # signed registers
     response = h.call('read_register', name='wheel', register_name='goal_velocity')
     assert response.success and response.value == goal_raw('velocity', -1.0) < 0
@@ -622,7 +641,10 @@ def test_write_register_refused(h: NodeHarness, register: str, value: int) -> No
 # command_timeout, runtime parameters, lifecycle ----------------------------------------------
 
 def test_command_timeout_zeroes_velocity_goals() -> None:
-    with NodeHarness(sim_params(JOINTS, command_timeout=0.3)) as h:
+    # The goal is seen while it lasts (command_timeout): long enough that a test thread kept
+    # off the CPU for a moment still sees it.
+    timeout_s = 1.0
+    with NodeHarness(sim_params(JOINTS, command_timeout=timeout_s)) as h:
         arm_goal = h.reg(IDS['arm'], 'goal_position')
         sent_s = time.monotonic()
         h.publish('velocity', ['wheel'], [1.0])
@@ -631,7 +653,7 @@ def test_command_timeout_zeroes_velocity_goals() -> None:
         h.wait_reg(IDS['wheel'], 'goal_velocity', lambda v: v == 0)
         h.wait_reg(IDS['fan'], 'goal_pwm', lambda v: v == 0)
         # It cannot fire before the timeout counted from the command (true on any machine).
-        assert time.monotonic() - sent_s >= 0.3
+        assert time.monotonic() - sent_s >= timeout_s
         assert h.reg(IDS['arm'], 'goal_position') == arm_goal   # position goals are kept
         # A fresh command is obeyed again.
         h.publish('velocity', ['wheel'], [0.5])

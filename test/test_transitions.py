@@ -5,9 +5,11 @@ Twenty deactivate/activate pairs (and seeded runs of every transition) land at r
 of the cycle, with every reply delayed a few milliseconds by the adapter, so most deactivates
 find a read in flight. Afterwards there is exactly one cycle thread (counted three ways: the
 threads named dxl_bus_cycle, the runner's own count, /diagnostics' cycle_threads), no lock is
-left held by a read of an earlier activation, the node cycles as it did before the transitions
-(cycles counted by the node in equal windows, compared as a ratio), no read fails, and no
-sample is refused as older than its request.
+left held by a read of an earlier activation, the node cycles again and never faster than its
+loop rate (counted by the node in windows of known length), no read fails, and no sample is
+refused as older than its request. How much slower than its rate it runs is not judged: a busy
+machine decides that. (The failure once seen, 9 Hz of 100, had causes that are checked here
+whatever the machine: a second cycle thread, and reads given the replies of an aborted one.)
 """
 
 import random
@@ -34,7 +36,10 @@ LOOP_HZ = 100.0
 # The adapter holds every reply 1-4 ms: a read is on the wire for a good part of each cycle.
 DELAYED = Faults(delay_ms=(1.0, 4.0))
 WINDOW_S = 1.5
-RATE_KEPT = 0.5   # cycles after / before, in equal windows (the failure seen: 9 Hz of 100)
+# Cycles a loop at LOOP_HZ may run in a window beyond its length * LOOP_HZ: one behind its
+# schedule catches up back to back (a period's backlog at most), and the window's two ends
+# each cut a cycle. A busy machine only makes them fewer.
+CATCH_UP = 3
 DEACTIVATE = Transition.TRANSITION_DEACTIVATE
 ACTIVATE = Transition.TRANSITION_ACTIVATE
 CLEANUP = Transition.TRANSITION_CLEANUP
@@ -47,10 +52,27 @@ def cycle_threads() -> int:
 
 
 def cycles_in(h: NodeHarness, seconds: float) -> int:
+    """Return the node's cycles in a window at least `seconds` long (measured, not assumed)."""
     assert h.node is not None
     first = h.node.manager.stats.cycles
+    began = time.monotonic()
     time.sleep(seconds)
-    return h.node.manager.stats.cycles - first
+    # The window runs to the count: a thread woken late has a longer one.
+    count = h.node.manager.stats.cycles - first
+    assert count <= (time.monotonic() - began) * LOOP_HZ + CATCH_UP, \
+        f'{count} cycles in {seconds} s at {LOOP_HZ:g} Hz: more than one cycle running'
+    return count
+
+
+def wait_cycles(h: NodeHarness, count: int, timeout_s: float = 10.0) -> None:
+    """Wait until the node has run `count` more cycles."""
+    assert h.node is not None
+    manager = h.node.manager
+    target = manager.stats.cycles + count
+    deadline = time.monotonic() + timeout_s
+    while manager.stats.cycles < target:
+        assert time.monotonic() < deadline, f'not {count} cycles within {timeout_s} s'
+        time.sleep(0.005)
 
 
 def transition(h: NodeHarness, transition_id: int) -> None:
@@ -59,16 +81,19 @@ def transition(h: NodeHarness, transition_id: int) -> None:
 
 
 def check_settled(h: NodeHarness, before: int) -> None:
-    """One cycle thread, at the rate it had, reading every servo, refusing nothing."""
+    """One cycle thread, never beyond its rate, reading every servo, refusing nothing."""
     assert h.node is not None
     manager = h.node.manager
     h.joint_states.wait(lambda m: len(m.name) == len(IDS))
-    time.sleep(0.3)   # the first full reads after the activation
+    wait_cycles(h, 30)   # the first full reads after the activation
     failures = manager.stats.read_failures
     refused = manager.stats.stale_refused
     after = cycles_in(h, WINDOW_S)
+    print(f'{before} cycles in {WINDOW_S} s before the transitions, {after} after')
+    # It cycles (waited for: a busy machine may run few in the window), in one thread, never
+    # beyond its rate (cycles_in).
+    wait_cycles(h, 10)
     assert cycle_threads() == 1 and h.node._runner.cycle_threads == 1
-    assert after >= RATE_KEPT * before, f'{after} cycles in {WINDOW_S} s, {before} before'
     assert manager.stats.read_failures == failures, manager.stats.read_failures - failures
     assert manager.stats.stale_refused == refused
     diagnostics = h.diagnostics.wait(
@@ -153,8 +178,10 @@ def test_an_aborted_read_is_waited_out_not_answered_later() -> None:
         data = result.data[1]
         assert isinstance(data, bytes), data
         ticks.append(struct.unpack('<H', data)[0])
-        # The aborted read's answer is 2 ms older than this request: -2 ms, folded.
+        # The aborted read's answer is 2 ms older than this request: -2 ms, folded. This
+        # request's is taken between the tick read before it and the one read after it.
+        taken_tick = sim.read_register(1, 'realtime_tick')
         age_ms = (ticks[-1] - asked_tick) % TICK_PERIOD_MS
-        assert age_ms < 100, (asked_tick, ticks)
+        assert age_ms <= (taken_tick - asked_tick) % TICK_PERIOD_MS, (asked_tick, ticks)
         time.sleep(0.01)
     assert port.in_waiting == 0
