@@ -2,8 +2,9 @@
 The driver's cycle in this process on recorded replies: its CPU, its objects, cold and hot.
 
 `python bench/cycle_cost.py` prints, for N XM430s on a ReplayPort (sim/replay.py: every cycle
-read answered at once from a record), the manager's cycle plus the joint_states bytes as the
-node makes them, without ROS:
+read answered at once from a record), the node's cycle (driver/loop.CycleLoop, one whole cycle
+a call as its timer driver runs it) plus the joint_states bytes as the node makes them, without
+ROS:
 - CPU per cycle back to back (hot) and with a 10 ms sleep between cycles (cold, as at
   loop_rate 100: the same code run after the caches were taken by others);
 - the Python memory blocks alive after 1,000 cycles against before (sys.getallocatedblocks)
@@ -25,6 +26,7 @@ sys.path.insert(0, str(ROOT / 'bench'))
 
 from ceiling_node import replay_transport  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.config import validate  # noqa: E402
+from dxl_servo_driver.driver.loop import CycleLoop, PrintLog  # noqa: E402
 from dxl_servo_driver.manager import Manager  # noqa: E402
 
 
@@ -43,18 +45,37 @@ def replay_manager(n: int, read_mode: str = 'sync') -> Manager:
     return manager
 
 
+class HandTimer:
+    """The loop's timer (driver/loop.Timers), stepped by hand: `tick` runs one cycle."""
+
+    def __init__(self) -> None:
+        self.tick: Callable[[], None] = lambda: None
+
+    def create_timer(self, period_s: float, callback: Callable[[], None]) -> Any:
+        """Keep the loop's cycle for the caller to run."""
+        self.tick = callback
+        return callback
+
+    def destroy_timer(self, timer: Any) -> None:
+        """Run nothing more."""
+        self.tick = lambda: None
+
+
 def cycle_function(manager: Manager) -> Callable[[], None]:
-    """Return one cycle as the node runs it: read, write, the joint_states bytes."""
+    """
+    Return one cycle as the node runs it: read, write, the joint_states bytes.
+
+    The node's loop (driver/loop.CycleLoop) with its timer driver, one whole cycle a call.
+    """
     from dxl_servo_driver.ros.messages import JointTable   # rclpy: only when measured
     table = JointTable(manager.joints)
     table.serialize = True
-
-    def cycle() -> None:
-        manager.cycle_begin()
-        manager.cycle_end(time.monotonic() + 0.01)
-        manager.cycle_write()
-        table.message(0)
-    return cycle
+    timer = HandTimer()
+    loop = CycleLoop(lambda: manager, manager.config.loop_rate,
+                     lambda stamp_ns, read_ok: table.message(stamp_ns), PrintLog(verbose=False),
+                     timers=timer)
+    loop.start('timer', manager.bus_budget().cycle_time_s)
+    return timer.tick
 
 
 def cpu_per_cycle_us(cycle: Callable[[], None], cycles: int, gap_s: float = 0.0,

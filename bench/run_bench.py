@@ -5,7 +5,7 @@ For N = 1, 6, 12, 24 servos at 1 and 4 Mbps (Return Delay Time 0), one `virtual_
 wire` serves five variants in turn, interleaved round by round so that machine noise hits all
 alike:
 - sdk_baseline: the plain dynamixel_sdk GroupSyncRead + GroupSyncWrite loop (worker process);
-- bus: the driver's bus layer running the node's cycle without ROS (worker process);
+- bus: the node's cycle loop (driver/loop.CycleLoop) without ROS (worker process);
 - node: the full node (its installed executable), driven through its lifecycle, joint_states
   counted by a subscriber here, commands published here and seen on the wire by the simulator;
 - bus_fast, node_fast: the same two with Fast Sync Read (read_mode fast_sync).

@@ -312,6 +312,13 @@ class Arm:
         """Return True when the cycle has nothing to prepare: no trajectory, no gripper goal."""
         return not self.gripper_runs and not self.trajectories.busy
 
+    def watch_samples(self, read_ok: bool) -> None:
+        """Judge this cycle's samples: grasps, gripper goals (the cycle, before publishing)."""
+        if read_ok and self.grasps:
+            self.update_grasps(time.monotonic())
+        if self.gripper_runs:
+            self.watch_grippers(time.monotonic())
+
     def grasping(self) -> Dict[str, bool]:
         """Return whether each gripper holds something."""
         return {name: detector.grasping for name, detector in self.grasps.items()}

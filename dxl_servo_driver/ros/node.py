@@ -74,8 +74,8 @@ class DriverNode(LifecycleNode):
         self.arm = Arm(self, self.config)
         # MoveIt's actions, on a node and executor of their own (ros/actions.py says why).
         self.actions = Actions(self)
-        self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
-                                   self.arm.prepare_goals, self.arm.idle)
+        # The cycle steps the arm (trajectories, gripper goals) and publishes what it read.
+        self._runner = CycleRunner(self, self.config.loop_rate, self._publish, [self.arm])
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.joints)
@@ -444,10 +444,7 @@ class DriverNode(LifecycleNode):
 
     # publishing -----------------------------------------------------------------------------
     def _publish(self, stamp_ns: int, read_ok: bool) -> None:
-        if read_ok and self.arm.grasps:
-            self.arm.update_grasps(time.monotonic())
-        if self.arm.gripper_runs:
-            self.arm.watch_grippers(time.monotonic())
+        # The arm watched these samples first (Arm.watch_samples, a step of the cycle).
         if read_ok and self.joint_states_pub is not None:
             msg = self._joints.message(stamp_ns)
             if msg is not None:

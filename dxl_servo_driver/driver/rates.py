@@ -1,4 +1,4 @@
-"""The cycle's measured rate, and who is to blame when it falls short (no ROS here)."""
+"""The cycle's measured rate, and who is to blame when it falls short (driver/loop.py)."""
 
 import time
 
