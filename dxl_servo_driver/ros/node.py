@@ -46,7 +46,14 @@ class StartupFailure(DriverError):
 
 
 class DriverNode(LifecycleNode):
-    """One bus of Dynamixel servos as a lifecycle node."""
+    """
+    One bus of Dynamixel servos as a lifecycle node.
+
+    About 420 lines, on purpose: it is the one place where ROS meets the driver, so each
+    lifecycle transition, the parameters' declarations and runtime hooks, and the publishing
+    wiring are here, each a few lines handing work to the manager, the arm, the actions and
+    the cycle loop; what has logic of its own lives in those.
+    """
 
     def __init__(self, port_factory: PortFactory = open_transport, **kwargs: Any) -> None:
         """
