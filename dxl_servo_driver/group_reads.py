@@ -25,7 +25,7 @@ from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, crc16, FAST_HEAD_SIZE, FAST_PART_OVERHEAD, fast_status_head,
     fast_status_size, fast_sync_head, fast_sync_size, Framer, HEADER, Instruction,
     parse_fast_status, PROTOCOL_2, STATUS_OVERHEAD)
-from dxl_servo_driver.serial_port import RawPort
+from dxl_servo_driver.raw_port import RawPort
 from dxl_servo_driver.transactions import Transactions
 from dxl_servo_driver.wire import Request
 

@@ -38,7 +38,7 @@ from dxl_servo_driver.driver.servo import (
 from dxl_servo_driver.driver.setup import Setup
 from dxl_servo_driver.errors import CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
-from dxl_servo_driver.serial_port import RawPort
+from dxl_servo_driver.raw_port import RawPort
 from dxl_servo_driver.tasks import Task, TaskRunner
 from dxl_servo_driver.transports import open_transport, PortFactory, Transport
 

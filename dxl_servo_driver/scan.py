@@ -221,16 +221,26 @@ def _describe_servo(bus: Bus, servo_id: int, model_number: int, baud_bps: int,
                       mode)
 
 
-def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str]) -> Dict[int, int]:
+def _ping_ids(bus: Bus, ids: Sequence[int], warnings: List[str],
+              protocol: float = 2.0) -> Dict[int, int]:
+    """
+    Ping each id alone in a protocol; return {id: model number} of those that answered.
+
+    An id that answers in 1.0 is left speaking 1.0 (the caller describes it, then sets it back).
+    """
     found: Dict[int, int] = {}
+    said = '' if protocol == 2.0 else f' (Protocol {protocol:.1f})'
     for servo_id in ids:
+        bus.speak(servo_id, FRAMERS[protocol])
         try:
             found[servo_id] = bus.ping(servo_id, probe=True)
         except CorruptReply:
-            warnings.append(f'id {servo_id} at {bus.baud_bps} bps: garbled replies (two servos '
-                            'with the same id, or a noisy line?)')
+            warnings.append(f'id {servo_id} at {bus.baud_bps} bps{said}: garbled replies (two '
+                            'servos with the same id, or a noisy line?)')
         except CommError:
-            continue
+            pass
+        if servo_id not in found or protocol == 2.0:
+            bus.speak(servo_id, FRAMERS[2.0])
     return found
 
 
@@ -256,24 +266,12 @@ def _sweep(bus: Bus, ids: Sequence[int], protocol: float, sweep_s: float,
         candidates = list(ids)
     else:
         candidates = sweep.answered + sweep.garbled
-    found: Dict[int, int] = {}
     waited = bus.latency_timer_s
     bus.latency_timer_s = min(waited, sweep_s)
     try:
-        for servo_id in candidates:
-            bus.speak(servo_id, framer)
-            try:
-                found[servo_id] = bus.ping(servo_id, probe=True)
-            except CorruptReply:
-                warnings.append(f'id {servo_id} at {bus.baud_bps} bps (Protocol {protocol:.1f}): '
-                                'garbled replies (two servos with the same id, or a noisy line?)')
-            except CommError:
-                pass
-            if servo_id not in found or protocol != 1.0:
-                bus.speak(servo_id, FRAMERS[2.0])
+        return _ping_ids(bus, candidates, warnings, protocol)
     finally:
         bus.latency_timer_s = waited
-    return found
 
 
 def sweep_faster(baud_bps: int) -> bool:

@@ -18,7 +18,7 @@ import select
 import struct
 import termios
 import time
-from typing import Callable, Optional, Protocol, TypeVar
+from typing import Callable, Optional, TypeVar
 
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.models import xm430
@@ -39,60 +39,6 @@ def adapter_latency_timer_ms(device: str) -> Optional[float]:
             return float(stream.read().strip())
     except (OSError, ValueError):
         return None
-
-
-class RawPort(Protocol):
-    """
-    The byte-level port the bus needs (a serial device, or the simulator's in-process port).
-
-    A port raises PortError (or, the simulator's, an OSError) when the device is gone; the bus
-    turns either into PortError.
-
-    `paced` and `waited` are what a device says of its timing; they are read through
-    port_paced() and port_waited(), which give a port that does not declare them (the
-    simulator's ports, a test's wrapper) this protocol's defaults: not paced, never waited.
-    """
-
-    # Its bytes come at wire speed, never sooner (a device): a reader may sleep until they can
-    # be there. A port that answers inside write() (the simulator's) is not paced.
-    paced: bool = False
-    # Whether the last read had to wait for its bytes (they were not all there when it began);
-    # asked of a paced port only.
-    waited: bool = False
-
-    @property
-    def baudrate(self) -> int:
-        """Return the line speed in bit/s."""
-
-    @baudrate.setter
-    def baudrate(self, baud_bps: int) -> None:
-        """Change the line speed."""
-
-    @property
-    def in_waiting(self) -> int:
-        """Return how many received bytes wait to be read."""
-
-    def write(self, data: bytes) -> int:
-        """Send bytes."""
-
-    def read(self, size: int, timeout_s: float) -> bytes:
-        """Block until size bytes arrived or timeout_s passed; return what arrived."""
-
-    def reset_input_buffer(self) -> None:
-        """Drop whatever was received and not read."""
-
-    def close(self) -> None:
-        """Release the port."""
-
-
-def port_paced(port: RawPort) -> bool:
-    """Return whether port's bytes come at wire speed (RawPort.paced, its default if unsaid)."""
-    return bool(getattr(port, 'paced', RawPort.paced))
-
-
-def port_waited(port: RawPort) -> bool:
-    """Return whether port's last read waited for its bytes (RawPort.waited, or its default)."""
-    return bool(getattr(port, 'waited', RawPort.waited))
 
 
 class SerialPort:

@@ -44,7 +44,7 @@ from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.protocol import BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, PROTOCOL_2
 from dxl_servo_driver.protocol1 import PROTOCOL_1
-from dxl_servo_driver.serial_port import port_paced, port_waited, RawPort
+from dxl_servo_driver.raw_port import port_paced, port_waited, RawPort
 
 # The framer of each protocol version, as configurations name them.
 FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}

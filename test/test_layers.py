@@ -58,6 +58,7 @@ LAYERS = {
     'gripper.py': 2,
     'bus.py': 1, 'wire.py': 1, 'transactions.py': 1, 'group_reads.py': 1, 'serial_port.py': 1,
     'protocol.py': 0, 'protocol1.py': 0, 'errors.py': 0, 'models': 0, 'termios2.py': 0,
+    'raw_port.py': 0,
     'timerslack.py': 0,
 }
 

@@ -16,7 +16,7 @@ from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.recovery import Recovery
 from dxl_servo_driver.driver.servo import ManagerError
 from dxl_servo_driver.errors import CommError, PortError
-from dxl_servo_driver.serial_port import RawPort
+from dxl_servo_driver.raw_port import RawPort
 from dxl_servo_driver.transports import PortFactory, Transport
 
 RECONNECT_INTERVAL_S = 1.0   # a lost port is tried again this often

@@ -29,10 +29,11 @@ import termios
 import threading
 import time
 import tty
-from typing import Any, Callable, Optional, Protocol
+from typing import Any, Callable, Optional
 
 from dxl_servo_driver import protocol1
 from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
+from dxl_servo_driver.raw_port import RawPort
 from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
 
 # Replies a late copy is chosen from.
@@ -48,39 +49,6 @@ READ_CHUNK = 4096
 IDLE_S = 0.5            # the proxy thread's longest sleep (a wake pipe ends it early)
 WRITE_TIMEOUT_S = 1.0   # how long the proxy waits for a full upstream device to take bytes
 HEAD = len(HEADER) + 3  # header, id and the two length bytes
-
-
-class RawPort(Protocol):
-    """
-    The raw port FaultyPort wraps: serial_port.RawPort's interface, typically SimPortHandler.
-
-    Spelled out here: the simulator builds on the bottom layer only, not on the bus layer's
-    serial_port.py.
-    """
-
-    @property
-    def baudrate(self) -> int:
-        """Return the line speed in bit/s."""
-
-    @baudrate.setter
-    def baudrate(self, baud_bps: int) -> None:
-        """Change the line speed."""
-
-    @property
-    def in_waiting(self) -> int:
-        """Return how many received bytes wait to be read."""
-
-    def write(self, data: bytes) -> int:
-        """Send bytes."""
-
-    def read(self, size: int, timeout_s: float) -> bytes:
-        """Block until size bytes arrived or timeout_s passed; return what arrived."""
-
-    def reset_input_buffer(self) -> None:
-        """Drop whatever was received and not read."""
-
-    def close(self) -> None:
-        """Release the port."""
 
 
 @dataclasses.dataclass(frozen=True)
