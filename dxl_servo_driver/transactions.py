@@ -199,6 +199,11 @@ class Transactions(Wire):
                     raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
                                        servo_id)
                 self.counters.timeouts += 1
+                if collected.discarded:
+                    # Replies came, none its own: the one before came after its deadline and
+                    # this one's will too (a slow adapter, a starved host): the slack grows
+                    # before the retry, as when late bytes wait at the next flush.
+                    self.raise_slack()
                 version = self.framer.version
                 hint = (' (only replies that did not answer it came back)' if collected.discarded
                         else f' (check the id, the baud rate, Protocol {version}.0, the servo '
