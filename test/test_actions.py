@@ -516,11 +516,12 @@ def test_the_arm_example_takes_moveits_two_actions() -> None:
         status, result = Goal(gripper_client(h), grip(1.0)).result()
         assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
         assert result.position == pytest.approx(1.0, abs=0.03)
-        # Reached on the way in; the XL330 may overshoot a little before it settles.
-        assert joint_rad('gripper') == pytest.approx(1.0, abs=0.08)
+        # Reached on the way in; the XL330 overshoots (0.09-0.17 rad seen) before it settles:
+        # it must settle there, not be at one moment read after the result.
+        wait_until(lambda: abs(joint_rad('gripper') - 1.0) < 0.03, 10.0, 'the gripper settled')
 
 
-def test_a_burst_of_goals_is_answered_whole(h: NodeHarness) -> None:
+def test_a_burst_of_goals_is_answered_whole() -> None:
     """
     Fifty goals sent at once by one client: every one is answered, and every result comes.
 
@@ -529,6 +530,14 @@ def test_a_burst_of_goals_is_answered_whole(h: NodeHarness) -> None:
     default one; its result queue is deeper, as docs say a client asking for more than ten
     results at once must make it (the answers to ended goals come back in one burst).
     """
+    # A node of its own: after the module's goals, its actions executor and client had shown
+    # the burst answered 0 or 1 times in 50 in full runs, never alone; this test is about the
+    # queue, not what earlier tests leave behind.
+    with arm_harness() as fresh:
+        burst(fresh)
+
+
+def burst(h: NodeHarness) -> None:
     assert h.client is not None
     deep = QoSProfile(depth=100)
     client = ActionClient(h.client.node, FollowJointTrajectory,
