@@ -30,6 +30,7 @@ setup(
         'console_scripts': [
             'node = dxl_servo_driver.ros.main:main',
             'scan = dxl_servo_driver.scan:main',
+            'dxl = dxl_servo_driver.tool.main:main',
             'virtual_bus = dxl_servo_driver.sim.virtual_bus:main',
         ],
     },
