@@ -1,0 +1,158 @@
+"""
+What the `dxl` commands talk to: a bus on a port, one servo on it with its table, SI values.
+
+`open_bus` opens the port the way the driver does (a serial device or `virtual_bus`'s pty) and
+turns every way it can fail into a ToolError saying so. `connect` pings one servo, reads its
+firmware version and picks its model's control table; a `ServoLink` then reads and writes items by
+their names (the manual's, snake_case), raw or in SI units (`to_si`, `from_si`: the item's unit as
+the table states it, e.g. '0.229 rpm' read as rad/s, 'pulse' as rad, '2.69 mA' as A).
+"""
+
+import argparse
+from dataclasses import dataclass
+import math
+from typing import Optional, Tuple
+
+from dxl_servo_driver import models
+from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver.errors import CommError, PortError
+from dxl_servo_driver.models.base import Item, Model, ModelError
+from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
+from dxl_servo_driver.tool.common import EXIT_PORT, EXIT_USAGE, ToolError
+
+FACTORY_BAUD = 57600
+# A tool waits generously for each reply beyond its wire time: the adapter's latency timer is
+# 16 ms by default on Linux, and a factory-new servo adds 500 us of Return Delay Time.
+DEFAULT_LATENCY_MS = 16.0
+FACTORY_RETURN_DELAY_S = 0.0005
+# Position items counted from the table's zero (an offset such as homing_offset is not).
+_ABSOLUTE = ('position', 'position_limit')
+# One of an X table's firmware_version address: where any 2.0 servo says it before its model is
+# known (the Protocol 1.0 tables' is read from the table of the model number the ping gave).
+_MANUAL_TABLE = models.model_for(1030)
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, baud: Optional[int] = FACTORY_BAUD,
+                      protocol: bool = True) -> None:
+    """Add --port, --baud and (unless told not to) --protocol to a command's parser."""
+    parser.add_argument('--port', required=True,
+                        help='serial device (e.g. /dev/ttyUSB0) or a virtual_bus pty')
+    parser.add_argument('--baud', type=int, default=baud, metavar='BPS',
+                        help=f'baud rate of the bus (default {baud})' if baud else
+                        'baud rate of the bus')
+    if protocol:
+        parser.add_argument('--protocol', type=float, choices=tuple(FRAMERS), default=2.0,
+                            help='protocol the servos speak (default 2.0)')
+
+
+def open_bus(port: str, baud_bps: int, protocol: float = 2.0,
+             return_delay_s: float = FACTORY_RETURN_DELAY_S) -> Bus:
+    """Open a port as a bus; ToolError (exit 3) saying why when it cannot."""
+    latency_ms = adapter_latency_timer_ms(port)
+    if latency_ms is None:
+        latency_ms = DEFAULT_LATENCY_MS
+    try:
+        raw = open_port(port, baud_bps)
+    except PortError as exc:
+        raise ToolError(str(exc), EXIT_PORT) from exc
+    return Bus(raw, baud_bps, latency_timer_s=(latency_ms + 2.0) / 1000.0,
+               return_delay_s=return_delay_s, framer=FRAMERS[protocol])
+
+
+def bus_from_args(args: argparse.Namespace) -> Bus:
+    """Open the bus the command's --port, --baud and --protocol name."""
+    return open_bus(args.port, args.baud, getattr(args, 'protocol', 2.0))
+
+
+@dataclass
+class ServoLink:
+    """One servo on a bus, with its model's control table."""
+
+    bus: Bus
+    servo_id: int
+    model: Model
+    firmware: Optional[int]
+
+    def item(self, name: str) -> Item:
+        """Return the item of this name; ToolError naming the model when it has none."""
+        try:
+            return self.model.lookup(name)
+        except (KeyError, ModelError) as exc:
+            raise ToolError(f'{self.model.name} has no item {name!r}', EXIT_USAGE) from exc
+
+    def read(self, name: str) -> int:
+        """Return an item's raw value."""
+        item = self.item(name)
+        return item.decode(self.bus.read(self.servo_id, item.address, item.size))
+
+    def write(self, name: str, value: int) -> None:
+        """Write an item's raw value (no checks: the caller checked its range)."""
+        item = self.item(name)
+        self.bus.write(self.servo_id, item.address, item.encode(value))
+
+    def read_si(self, name: str) -> Tuple[float, str]:
+        """Return an item's value in SI units, and the unit."""
+        item = self.item(name)
+        return to_si(self.model, item, self.read(name))
+
+
+def connect(bus: Bus, servo_id: int) -> ServoLink:
+    """Ping a servo and pick its table; ToolError saying what did not answer or is unknown."""
+    try:
+        number = bus.ping(servo_id)
+    except CommError as exc:
+        raise ToolError(f'id {servo_id} does not answer at {bus.baud_bps} bps in Protocol '
+                        f'{bus.default_framer.version}.0: {exc}') from exc
+    try:
+        where = (models.model_for(number) if number in models.SUPPORTED
+                 else _MANUAL_TABLE).item('firmware_version')
+        firmware: Optional[int] = where.decode(bus.read(servo_id, where.address, where.size))
+        model = models.model_for(number, firmware)
+    except ModelError as exc:
+        raise ToolError(f'id {servo_id}: {exc}') from exc
+    except CommError as exc:
+        raise ToolError(f'id {servo_id} stopped answering: {exc}') from exc
+    return ServoLink(bus, servo_id, model, firmware)
+
+
+def _scale(model: Model, item: Item) -> Tuple[float, str]:
+    """Return (SI per raw unit, SI unit name) of an item, (1, its unit) when it has no SI form."""
+    unit = item.unit
+    if unit == 'pulse':
+        return 2.0 * math.pi / model.pulses_per_rev, 'rad'
+    number, _, name = unit.partition(' ')
+    try:
+        factor = float(number)
+    except ValueError:
+        return 1.0, unit
+    if name == 'rpm':
+        return factor * 2.0 * math.pi / 60.0, 'rad/s'
+    if name == 'mA':
+        return factor / 1000.0, 'A'
+    if name == 'V':
+        return factor, 'V'
+    if name == 'us':
+        return factor * 1e-6, 's'
+    if name == 'ms':
+        return factor * 1e-3, 's'
+    if name == '%':
+        return factor / 100.0, 'ratio'
+    if name == 'rev/min^2':
+        return factor * 2.0 * math.pi / 3600.0, 'rad/s^2'
+    return 1.0, unit
+
+
+def to_si(model: Model, item: Item, raw: int) -> Tuple[float, str]:
+    """Return a raw value in SI units (positions from the table's zero), and the unit."""
+    factor, unit = _scale(model, item)
+    if unit == 'rad' and item.name.endswith(_ABSOLUTE):
+        return (raw - model.position_zero_raw) * factor, unit
+    return raw * factor, unit
+
+
+def from_si(model: Model, item: Item, value: float) -> int:
+    """Return the raw value nearest to an SI value (the inverse of to_si)."""
+    factor, unit = _scale(model, item)
+    if unit == 'rad' and item.name.endswith(_ABSOLUTE):
+        return int(round(value / factor)) + model.position_zero_raw
+    return int(round(value / factor))
