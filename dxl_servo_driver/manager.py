@@ -148,8 +148,9 @@ class Manager:
     def stats(self) -> Stats:
         """Return what the cycle and recovery counted so far."""
         cycle = self._cycle
-        return Stats(cycles=cycle.cycles, read_failures=cycle.read_failures,
-                     retries=cycle.retries, retry_successes=cycle.retry_successes,
+        samples = cycle.samples
+        return Stats(cycles=cycle.cycles, read_failures=samples.read_failures,
+                     retries=samples.retries, retry_successes=samples.retry_successes,
                      stale_refused=self._ctx.stale.refused,
                      recoveries=self._recovery.recoveries)
 
@@ -188,7 +189,7 @@ class Manager:
         plan = self._cycle.wire_plan()
         if not plan:   # nobody to read: what one servo would cost
             return state_block.bus_budget(1, self.config.baud_rate, rdt_raw,
-                                          self.latency_timer_s, fast=self._cycle.fast)
+                                          self.latency_timer_s, fast=self._cycle.plan.fast)
         return state_block.plan_budget(plan, self.config.baud_rate, rdt_raw,
                                        self.latency_timer_s)
 
@@ -201,7 +202,7 @@ class Manager:
     @property
     def read_mode_in_use(self) -> str:
         """Return how the state is read now: 'sync' or 'fast_sync' (read_mode auto decides)."""
-        return 'fast_sync' if self._cycle.fast else 'sync'
+        return 'fast_sync' if self._cycle.plan.fast else 'sync'
 
     @property
     def goal_slots_in_use(self) -> str:
@@ -310,7 +311,8 @@ class Manager:
                 self._ports.lose(exc)
             return False
         with self.lock:
-            restarted, self._cycle.restarted = self._cycle.restarted, []
+            samples = self._cycle.samples
+            restarted, samples.restarted = samples.restarted, []
             for servo in restarted:
                 self._recovery.restarted(servo)
         return True

@@ -138,14 +138,12 @@ class Cycle:
     def __init__(self, ctx: Context, goals: Goals) -> None:
         self._ctx = ctx
         self._lock = ctx.lock
-        self._roster = ctx.roster
         self._link = ctx.link
-        self._tasks = ctx.tasks
         self._goals = goals
-        self._stale = ctx.stale
-        self._clock = ctx.clock
-        self._plan = ReadPlan(ctx)
-        self._samples = Samples(ctx, self._plan)
+        # The read's plan and its samples: their counters and flags (fast, restarted,
+        # read_failures, retries) are what the manager reads of the cycle.
+        self.plan = ReadPlan(ctx)
+        self.samples = Samples(ctx, self.plan)
         self._writer = GoalWriter(ctx, goals)
         self.cycles = 0
         # How often the whole state block (health part too) is read; the node sets it from
@@ -160,51 +158,17 @@ class Cycle:
         self._linger_next = False
 
     # what the others read and call --------------------------------------------------------
-    @property
-    def restarted(self) -> List[Servo]:
-        """Return the servos found restarted on their own by the last read (for recovery)."""
-        return self._samples.restarted
-
-    @restarted.setter
-    def restarted(self, servos: List[Servo]) -> None:
-        self._samples.restarted = servos
-
-    @property
-    def read_failures(self) -> int:
-        """Return the servo reads that failed in the cycle."""
-        return self._samples.read_failures
-
-    @property
-    def retries(self) -> int:
-        """Return the single-servo reads again within a cycle."""
-        return self._samples.retries
-
-    @property
-    def retry_successes(self) -> int:
-        """Return the retries that got an answer."""
-        return self._samples.retry_successes
-
-    @property
-    def fast(self) -> bool:
-        """Return True while the reads are fast ones: Fast Sync Read, Fast Bulk Read."""
-        return self._plan.fast
-
-    @property
-    def fast_given_up(self) -> bool:
-        """Return whether read_mode auto gave fast reads up (until the next configure)."""
-        return self._plan.fast_given_up
-
     def want_full(self) -> None:
         """Read the whole block (health too) next cycle."""
-        self._samples.need_full = True
+        self.samples.need_full = True
 
     def refresh(self) -> None:
         """Take who is read again (after configure, or a task began or ended)."""
-        self._plan.refresh()
+        self.plan.refresh()
 
     def wire_plan(self) -> List[state_block.Transaction]:
         """Return the transactions of one usual cycle as the servos are grouped now."""
-        return self._plan.wire_plan()
+        return self.plan.wire_plan()
 
     def write_pending(self) -> int:
         """Write the goals queued since the last cycle (GoalWriter.write_pending)."""
@@ -231,14 +195,14 @@ class Cycle:
     def _begin(self, full: Optional[bool],
                on_stamp: Optional[Callable[[], None]] = None) -> Optional[_Begun]:
         bus = self._link.io()
-        plan = self._plan
+        plan = self.plan
         if not plan.groups and not plan.group_1:
             return None
         if on_stamp is not None:
             on_stamp()
-        stamp = self._clock()
+        stamp = self._ctx.clock()
         if full is None:
-            full = stamp - self._last_full_s >= self.health_period_s or self._samples.need_full
+            full = stamp - self._last_full_s >= self.health_period_s or self.samples.need_full
         # Every read carries the servo's Realtime Tick, which dates each sample: a reply has
         # nothing but its id and length to tie it to its request, and an adapter that hands
         # over an old reply late (in the place of one it lost) is caught by nothing else. The
@@ -271,13 +235,13 @@ class Cycle:
         bus = self._link.io()
         records = []
         cut: Dict[int, Tuple[int, int]] = {}
-        for servo in self._plan.group_1:
+        for servo in self.plan.group_1:
             block = servo.block
             size = group_length(block, length)
             lead = 0 if block.has_tick else min(self._tag, block.read_address)
             records.append((servo.servo_id, block.read_address - lead, size + lead))
             cut[servo.servo_id] = (lead, size)
-        if self._plan.bulk_1:
+        if self.plan.bulk_1:
             result = bus.bulk_read(records, FRAMERS[1.0])
         else:
             data: Dict[int, Union[bytes, CommError]] = {}
@@ -286,7 +250,7 @@ class Cycle:
             for servo_id, address, size in records:
                 try:
                     data[servo_id], asked_s = bus.read_dated(
-                        servo_id, address, size, linger(self._roster.by_id[servo_id].block))
+                        servo_id, address, size, linger(self._ctx.roster.by_id[servo_id].block))
                     dated[servo_id] = (asked_s, time.monotonic())
                 except CommError as exc:
                     data[servo_id] = exc
@@ -329,7 +293,7 @@ class Cycle:
                retry_until: Optional[float], chain: Optional[Callable[[], None]] = None) -> float:
         """Complete a cycle's read: the other layouts, retries, samples taken (lock held)."""
         received = time.monotonic()   # the bus dates requests on this clock
-        plan, samples = self._plan, self._samples
+        plan, samples = self.plan, self.samples
         if result.values is not None:
             # The usual cycle: one clean block, every servo decoded at once by the bus.
             if chain is not None and self._may_chain(result.values, reading.servos):
@@ -338,7 +302,7 @@ class Cycle:
                 self._reading = ReadInFlight.start(self._lock, lambda: self._begin(None, chain))
             plan.fast_empty = 0
             samples.need_full = False
-            refused = self._stale.refused
+            refused = self._ctx.stale.refused
             samples.take_block(result, reading.stamp, received, reading.servos)
             self._after_dating(refused)
             return reading.stamp
@@ -362,14 +326,14 @@ class Cycle:
         samples.need_full = False
         if reading.full:
             self._last_full_s = reading.stamp
-        refused = self._stale.refused
+        refused = self._ctx.stale.refused
         samples.take_results(result, reading.stamp, received)
         self._after_dating(refused)
         return reading.stamp
 
     def _after_dating(self, refused_before: int) -> None:
         """End a cycle's read: a sample refused as older than its request tells of a late reply."""
-        self._linger_next = self._stale.refused > refused_before
+        self._linger_next = self._ctx.stale.refused > refused_before
         if self._linger_next:
             # It was taken in the place of this read's own, which came after its deadline: the
             # next read lingers to get back in step, and the deadlines get more slack.
@@ -388,7 +352,7 @@ class Cycle:
         cycle that does not chain: every whole-block read (the health part, at least once a
         second), every cycle with a goal.
         """
-        if (self._goals.waiting() or not self._tasks.idle or self._roster.secondary
+        if (self._goals.waiting() or not self._ctx.tasks.idle or self._ctx.roster.secondary
                 or self._lock.waiting):
             return False
         fields = BLOCK.TAGGED_FIELDS

@@ -168,22 +168,20 @@ def _items(number: int, f: _Figures, *, protocol_type: bool, startup: bool, driv
                         '2 digital in pull-up, 3 digital in pull-down)'))
         items.append(_item(f'external_port_data_{n}', 598 + 2 * n, 2, 'RW', 0, 0, 4095,
                            description=f'External Port Data {n} (12-bit analog or digital)'))
-    if drive_mode:
+    # The items only some firmware has: (has it, name, address, size, access, initial,
+    # minimum, maximum, description).
+    optional = (
         # Bits 0 reverse, 2 time-based profile, 3 torque on by goal update (0..13).
-        items.append(_item('drive_mode', 10, 1, 'RW', 0, 0, 13,
-                           description='Drive Mode (bit 0 reverse, 2 time-based profile, '
-                                       '3 torque on by goal update)'))
-    if protocol_type:
+        (drive_mode, 'drive_mode', 10, 1, 'RW', 0, 0, 13,
+         'Drive Mode (bit 0 reverse, 2 time-based profile, 3 torque on by goal update)'),
         # 2 is DYNAMIXEL Protocol 2.0, 10 Modbus-RTU.
-        items.append(_item('protocol_version', 13, 1, 'RW', 2, 2, 10,
-                           description='Protocol Type (2 Protocol 2.0, 10 Modbus-RTU)'))
-    if startup:
-        items.append(_item('startup_configuration', 60, 1, 'RW', 0, 0, 3,
-                           description='Startup Configuration (bit 0 torque on at boot, '
-                                       'bit 1 RAM restore)'))
-    if backup:
-        items.append(_item('backup_ready', 878, 1, 'R', 0, 0, 1,
-                           description='Backup Ready (a RAM backup is stored)'))
+        (protocol_type, 'protocol_version', 13, 1, 'RW', 2, 2, 10,
+         'Protocol Type (2 Protocol 2.0, 10 Modbus-RTU)'),
+        (startup, 'startup_configuration', 60, 1, 'RW', 0, 0, 3,
+         'Startup Configuration (bit 0 torque on at boot, bit 1 RAM restore)'),
+        (backup, 'backup_ready', 878, 1, 'R', 0, 0, 1, 'Backup Ready (a RAM backup is stored)'),
+    )
+    items.extend(_item(*row[1:-1], description=row[-1]) for row in optional if row[0])
     return tuple(sorted(items, key=lambda each: each.address))
 
 
