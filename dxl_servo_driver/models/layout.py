@@ -61,6 +61,16 @@ class ItemMaker:
                     direction_bit=self.direction_bit if direction else 0, raw_zero=raw_zero)
         return made if area is None else replace(made, area=area)
 
+    def identity(self, number: int) -> list[Item]:
+        """Return the Protocol 2.0 tables' first items: Model Number, Information, Firmware."""
+        return [
+            self('model_number', 0, 2, 'R', number, 0, 0xFFFF, description='Model Number'),
+            self('model_information', 2, 4, 'R', 0, 0, 0xFFFFFFFF,
+                 description='Model Information'),
+            # '-' in the e-manual for the PRO families: the simulator reports 0.
+            self('firmware_version', 6, 1, 'R', 0, 0, 0xFF, description='Firmware Version'),
+        ]
+
 
 def build(base: Iterable[Item], *, remove: Iterable[str] = (), add: Iterable[Item] = (),
           override: Overrides | None = None) -> tuple[Item, ...]:

@@ -64,11 +64,7 @@ def _items(number: int, f: _Figures, *, protocol_type: bool, startup: bool, driv
     gains = dict(zip(('velocity_i_gain', 'velocity_p_gain', 'position_d_gain',
                       'position_i_gain', 'position_p_gain'), f.gains))
     items = [
-        _item('model_number', 0, 2, 'R', number, 0, 0xFFFF, description='Model Number'),
-        _item('model_information', 2, 4, 'R', 0, 0, 0xFFFFFFFF,
-              description='Model Information'),
-        # '-' in the e-manual: the simulator reports 0.
-        _item('firmware_version', 6, 1, 'R', 0, 0, 0xFF, description='Firmware Version'),
+        *_item.identity(number),
         _item('id', 7, 1, 'RW', 1, 0, 252, description='Dynamixel ID (254 is broadcast)'),
         _item('baud_rate', 8, 1, 'RW', 1, 0, 9, description='Communication Baud Rate'),
         _item('return_delay_time', 9, 1, 'RW', 250, 0, 254, unit='2 us',

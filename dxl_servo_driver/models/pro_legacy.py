@@ -134,11 +134,7 @@ def _common(number: int, *, mode_initial: int, mode_max: int, moving_threshold: 
     """
     high, low, lowest, highest = position
     items = [
-        _item('model_number', 0, 2, 'R', number, 0, 0xFFFF, description='Model Number'),
-        _item('model_information', 2, 4, 'R', 0, 0, 0xFFFFFFFF,
-              description='Model Information'),
-        # '-' in the e-manual: the simulator reports 0.
-        _item('firmware_version', 6, 1, 'R', 0, 0, 0xFF, description='Firmware Version'),
+        *_item.identity(number),
         _item('id', 7, 1, 'RW', 1, 0, 252, description='DYNAMIXEL ID (254 is broadcast)'),
         _item('baud_rate', 8, 1, 'RW', 1, 0, max(BAUD_RATES),
               description='Communication Baud Rate'),
