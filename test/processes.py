@@ -79,8 +79,9 @@ class VirtualBusProcess:
     """
     A virtual_bus subprocess: its stdout lines read on a thread, its stderr kept, its device.
 
-    ids, baud_bps and link become --ids, --baud and --link when given; extra_args follow as
-    they are (so bad command lines can be tried too). With expect_device (the default) the
+    ids, baud_bps and link become --ids, --baud and --link when given (ids may repeat: servos
+    sharing an id), unplugged adds --unplugged; extra_args follow as they are (so bad command
+    lines can be tried too). With expect_device (the default) the
     constructor waits for the device path virtual_bus prints first, checks it (a /dev path, and
     the link points to it) and keeps it as `device`; if that fails, the process is stopped.
     Pipes: control lines go to stdin; stdout lines are queued, stderr lines kept, each by a
@@ -90,10 +91,12 @@ class VirtualBusProcess:
     def __init__(self, ids: Sequence[int] = (), baud_bps: Optional[int] = None,
                  link: Optional[PathLike] = None, extra_args: Sequence[str] = (),
                  stdin: Optional[int] = subprocess.PIPE, expect_device: bool = True,
-                 start_timeout_s: float = START_TIMEOUT_S) -> None:
+                 start_timeout_s: float = START_TIMEOUT_S, unplugged: bool = False) -> None:
         args: List[str] = []
         if ids:
             args += ['--ids', *[str(i) for i in ids]]
+        if unplugged:
+            args.append('--unplugged')
         if baud_bps is not None:
             args += ['--baud', str(baud_bps)]
         if link is not None:
@@ -158,8 +161,8 @@ class VirtualBusProcess:
         assert answer is not None, f'virtual_bus ended:\n{self.stderr_text()}'
         return answer
 
-    def get(self, servo_id: int, register: str) -> int:
-        """Return one register of a servo through the `get ID NAME` control line."""
+    def get(self, servo_id: Union[int, str], register: str) -> int:
+        """Return one register of a servo (its id, or '#N') through the `get ID NAME` line."""
         answer = self.control(f'get {servo_id} {register}')
         match = re.fullmatch(rf'ok get {servo_id} {register}=(-?\d+)', answer)
         assert match, answer

@@ -65,6 +65,41 @@ def test_the_help_answer_keeps_the_commands_it_had() -> None:
     assert control.HELP_TEXT.endswith(f' | {after}')
 
 
+def test_the_help_answer_lists_the_hand_and_the_servo_references() -> None:
+    entries = control.HELP_TEXT.removeprefix('commands: ').split(' | ')
+    assert 'turn ID RAD [SECONDS]' in entries
+    assert 'stops ID MIN_RAD MAX_RAD|off' in entries
+    assert '#N, the N-th of --ids' in control.SERVO_ID.meaning
+    # Every command naming a servo takes #N too.
+    with_servo = [spec for spec in control.COMMANDS if control.SERVO_ID in spec.args]
+    assert {spec.name for spec in with_servo} >= {'plug', 'unplug', 'turn', 'stops', 'get'}
+    for spec in with_servo:
+        assert control.parse(f'{spec.name} #3 ' + ' '.join(
+            '1' if arg.slot == 'number' else 'id' if arg.slot == 'register' else 'overload'
+            if arg is control.ERROR_KIND else 'on' for arg in spec.args[1:])).servo == '#3'
+
+
+def test_optional_and_alternative_arguments() -> None:
+    assert control.parse('turn #2 1.5').numbers == (1.5,)
+    assert control.parse('turn 4 -7 0').numbers == (-7.0, 0.0)
+    assert control.parse('stops 1 OFF').text == 'off'
+    assert control.parse('stops 1 -0.5 0.5').numbers == (-0.5, 0.5)
+    for line, error in (('turn 1', 'usage: turn ID RAD [SECONDS]'),
+                        ('turn 1 1 1 1', 'usage: turn ID RAD [SECONDS]'),
+                        ('stops 1 off 2', 'usage: stops ID MIN_RAD MAX_RAD|off'),
+                        ('stops 1 0', 'usage: stops ID MIN_RAD MAX_RAD|off'),
+                        ('turn 1 1 -2', "bad time (s) '-2': expected >= 0"),
+                        ('turn 1 nan', "bad angle (rad) 'nan': expected a finite number"),
+                        ('turn #x 1', "bad servo '#x'")):
+        with pytest.raises(control.ControlError) as info:
+            control.parse(line)
+        assert error in str(info.value), line
+    bus = SimBus([1], boot_time_s=0.0)
+    assert control.handle_line('stops 1 1 -1', bus) == \
+        'error: bad range 1..-1 rad: expected MIN <= MAX'
+    assert control.handle_line('turn 1 0.5', bus) == 'ok turn 1 0.5'
+
+
 def test_markdown_has_one_row_per_command() -> None:
     text = control.commands_markdown()
     lines = text.splitlines()

@@ -222,6 +222,30 @@ def test_models_and_firmware_options(virtual_bus: StartVirtualBus,
         time.sleep(0.01)
 
 
+def test_shared_ids_and_unplugged_servos_on_the_start_line(
+        virtual_bus: StartVirtualBus, handler: sdk.Protocol2PacketHandler) -> None:
+    vb = virtual_bus([1, 1, 2], 1_000_000, unplugged=True)
+    start = f'virtual_bus: {vb.device}: #1 id 1 XM430-W210 (model 1030, firmware 45) ' \
+        'unplugged, #2 id 1 XM430-W210 (model 1030, firmware 45) unplugged, ' \
+        'id 2 XM430-W210 (model 1030, firmware 45) unplugged'
+    deadline_s = time.monotonic() + LINE_TIMEOUT_S
+    while start not in vb.stderr_text().splitlines():
+        assert time.monotonic() < deadline_s, vb.stderr_text()
+        time.sleep(0.01)
+    port = open_sdk_port(vb.device, 1_000_000)
+    try:
+        assert handler.ping(port, 2)[1] == sdk.COMM_RX_TIMEOUT   # unplugged
+        assert vb.control('plug 2') == 'ok plug 2'
+        assert vb.control('plug 1') == \
+            'error: id 1 is ambiguous: servos #1, #2 have it; name one as #N'
+        deadline_s = time.monotonic() + LINE_TIMEOUT_S   # it boots before it answers
+        while handler.ping(port, 2)[1] != sdk.COMM_SUCCESS:
+            assert time.monotonic() < deadline_s, 'servo 2 never answered after plug'
+    finally:
+        port.closePort()
+    assert vb.get('#2', 'id') == 1 and vb.get(2, 'id') == 2
+
+
 def test_binary_garbage_on_stdin_is_one_error_line(virtual_bus: StartVirtualBus) -> None:
     vb = virtual_bus([1])
     assert vb.device is not None
@@ -365,7 +389,7 @@ def test_stale_link_of_ours_is_replaced(virtual_bus: StartVirtualBus,
     ['--baud', '1000000'],                      # no --ids
     ['--ids', '1', '--baud', '12345'],          # not a servo baud
     ['--ids', '300'],                           # id out of range
-    ['--ids', '1', '1'],                        # duplicate
+    ['--ids', '1', '1', '--models', '1060', '1060', '1060'],   # one per id: 2 ids, 3 models
     ['--ids', 'x'],
     ['--ids', '1', '--timing', 'slow'],
     ['--ids', '1', '--latency-ms', '1'],        # latency without wire timing

@@ -17,13 +17,25 @@ has its bit flipped after the header, id and length, so its checksum fails.
 
 Each servo is of one model (models.Model, the XM430 manual's 1030 unless `models` says
 otherwise): its control table, its ping answer, its hardware error bits and its physics.
+
+Several servos may share an id (the factory state: every new servo is id 1). A servo is named by
+a ServoRef: its id, when exactly one servo of the bus has it (plugged or not), or '#N', the N-th
+servo given to the bus (1-based), which stays that servo whatever its id becomes. Servos that
+answer one request at the same place in the wire order (the same id twice) collide: their
+replies are combined as the line combines them (sim/collision.py), so the host reads garbled
+bytes, never one clean reply; in a fast read the colliding parts are combined inside the one
+packet.
+
+A hand may turn a servo's horn while its torque is off (turn), and mechanical end stops may
+bound the horn (set_stops): both in servo radians, as the driver reports a servo with no
+offset, no reverse and a ratio of 1 (Present Position = the model's zero + rad / rad per pulse).
 """
 
 from dataclasses import dataclass
 import random
 import threading
 import time
-from typing import Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping, Sequence, Union
 
 from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
@@ -31,6 +43,7 @@ from dxl_servo_driver.protocol import (
     StreamParser)
 from dxl_servo_driver.protocol1 import StreamParser1
 from dxl_servo_driver.sim import protocol1
+from dxl_servo_driver.sim.collision import BITS_PER_FRAME, SKEW_BITS, wired_and
 from dxl_servo_driver.sim.dynamics import ServoDynamics
 from dxl_servo_driver.sim.memory import MANUAL_MODEL
 from dxl_servo_driver.sim.servo import SimServo
@@ -42,7 +55,11 @@ ERROR_KINDS: dict[str, str] = {
     'overload': 'overload', 'overheat': 'overheating', 'voltage': 'input_voltage',
     'encoder': 'motor_encoder', 'shock': 'electrical_shock',
 }
-# Replies of one packet stay in wire order even if two servos share an id (bus order then).
+# A servo on the bus: its id (when only one servo has it), or '#N', the N-th servo given (1-based).
+ServoRef = Union[int, str]
+# How long a hand takes for a turn unless told (s).
+TURN_SECONDS = 0.5
+# Replies of one packet stay in wire order; servos answering at the same rank collide.
 _LAST = 1 << 16
 _FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
 
@@ -72,14 +89,15 @@ class SimBus:
 
     def __init__(self, ids: Iterable[int], clock: Callable[[], float] = time.monotonic,
                  seed: int | None = None, boot_time_s: float = 0.1,
-                 models: Mapping[int, Model] | None = None,
-                 firmware: Mapping[int, int] | None = None) -> None:
+                 models: Mapping[int, Model] | Sequence[Model] | None = None,
+                 firmware: Mapping[int, int] | Sequence[int | None] | None = None) -> None:
         """
-        Put servos with these ids on the bus.
+        Put servos with these ids on the bus, in this order (an id may repeat).
 
-        models maps an id to its servo's model (the others are the XM430 manual's, 1030);
-        firmware maps an id to the Firmware Version it reports (default: its model's), which
-        must be one that has that model's table. ValueError for a bad id or firmware.
+        models maps an id to its servo's model (the others are the XM430 manual's, 1030), or
+        lists one model per servo, in the order of ids; firmware maps an id to the Firmware
+        Version it reports (default: its model's), or lists one per servo (None: its model's),
+        which must be one that has that model's table. ValueError for a bad id or firmware.
         """
         self.lock = threading.RLock()
         self._clock = clock
@@ -93,20 +111,14 @@ class SimBus:
         self.last_packet_s = float('-inf')
         now_s = clock()
         ids = [int(servo_id) for servo_id in ids]
-        models = dict(models or {})
-        firmware = dict(firmware or {})
-        for what, mapping in (('models', models), ('firmware', firmware)):
-            strays = sorted(set(mapping) - set(ids))
-            if strays:
-                raise ValueError(f'{what} names ids {strays}, which are not on the bus {ids}')
+        slot_models: list[Model] = _per_servo('models', ids, models, MANUAL_MODEL)
+        slot_firmware: list[int | None] = _per_servo('firmware', ids, firmware, None)
         self._slots: list[_Slot] = []
-        for servo_id in ids:
+        for servo_id, model, version in zip(ids, slot_models, slot_firmware):
             if not 0 <= servo_id <= MAX_ID:
                 raise ValueError(f'servo id {servo_id} outside 0..{MAX_ID}')
-            model = models.get(servo_id, MANUAL_MODEL)
             servo = SimServo(servo_id, ServoDynamics(model=model), now_s,
-                             boot_time_s=boot_time_s, model=model,
-                             firmware_version=firmware.get(servo_id))
+                             boot_time_s=boot_time_s, model=model, firmware_version=version)
             self._slots.append(_Slot(servo))
 
     # ---- the wire -----------------------------------------------------------------------------
@@ -145,13 +157,12 @@ class SimBus:
                         continue
                     rank = order.get(servo_id, _LAST) if order is not None else servo_id
                     answered.append((rank, index, reply))
-                answered.sort(key=lambda entry: (entry[0], entry[1]))
                 if fast and order is not None:
                     if answered:   # (a malformed request, answered by none, has no lengths)
-                        replies.extend(_fast_reply([entry[2] for entry in answered],
+                        replies.extend(_fast_reply(_ranks(answered),
                                                    _fast_lengths(event.packet, len(order))))
                 else:
-                    replies.extend(entry[2] for entry in answered)
+                    replies.extend(_on_the_wire(answered, baud_bps))
             for event in events1:
                 replies.extend(self._answer1(event, baud_bps, now_s))
             return replies
@@ -174,8 +185,7 @@ class SimBus:
                 continue
             rank = order.get(servo_id, _LAST) if order is not None else servo_id
             answered.append((rank, index, reply))
-        answered.sort(key=lambda entry: (entry[0], entry[1]))
-        return [entry[2] for entry in answered]
+        return _on_the_wire(answered, baud_bps)
 
     def advance_stalest(self, min_age_s: float) -> bool:
         """
@@ -222,7 +232,17 @@ class SimBus:
         with self.lock:
             return sorted(slot.servo.servo_id for slot in self._slots)
 
-    def read_register(self, servo_id: int, name: str) -> int:
+    def servos(self) -> list[SimServo]:
+        """Return every servo (plugged or not) in the order given to the bus: '#1' first."""
+        with self.lock:
+            return [slot.servo for slot in self._slots]
+
+    def plugged(self, servo_id: ServoRef) -> bool:
+        """Return whether the servo is on the bus."""
+        with self.lock:
+            return self._slot(servo_id).plugged
+
+    def read_register(self, servo_id: ServoRef, name: str) -> int:
         """Return one register of a servo, brought up to the clock's time."""
         with self.lock:
             servo = self._servo(servo_id)
@@ -232,19 +252,19 @@ class SimBus:
             servo.advance(self._clock())
             return servo.memory.get(name)
 
-    def model(self, servo_id: int) -> Model:
+    def model(self, servo_id: ServoRef) -> Model:
         """Return the model of the servo with this id."""
         with self.lock:
             return self._servo(servo_id).model
 
-    def registers(self, servo_id: int) -> dict[str, int]:
+    def registers(self, servo_id: ServoRef) -> dict[str, int]:
         """Return every register of a servo by name, brought up to the clock's time."""
         with self.lock:
             servo = self._servo(servo_id)
             servo.advance(self._clock())
             return servo.memory.snapshot()
 
-    def servo(self, servo_id: int) -> SimServo:
+    def servo(self, servo_id: ServoRef) -> SimServo:
         """Return the SimServo with this id (tests and tools)."""
         with self.lock:
             return self._servo(servo_id)
@@ -255,22 +275,22 @@ class SimBus:
         with self.lock:
             self._random.seed(seed)
 
-    def set_drop(self, servo_id: int, probability: float) -> None:
+    def set_drop(self, servo_id: ServoRef, probability: float) -> None:
         """Lose this servo's status packets with the given probability."""
         with self.lock:
             self._slot(servo_id).drop_probability = _probability(probability)
 
-    def set_corrupt(self, servo_id: int, probability: float) -> None:
+    def set_corrupt(self, servo_id: ServoRef, probability: float) -> None:
         """Corrupt this servo's status packets with the given probability."""
         with self.lock:
             self._slot(servo_id).corrupt_probability = _probability(probability)
 
-    def set_tick(self, servo_id: int, tick_ms: int) -> None:
+    def set_tick(self, servo_id: ServoRef, tick_ms: int) -> None:
         """Make a servo's Realtime Tick read tick_ms now and count on from there."""
         with self.lock:
             self._servo(servo_id).set_tick(self._clock(), int(tick_ms))
 
-    def inject_error(self, servo_id: int, kind: str) -> None:
+    def inject_error(self, servo_id: ServoRef, kind: str) -> None:
         """
         Latch a hardware error: overload, overheat, voltage, encoder or shock.
 
@@ -286,7 +306,7 @@ class SimBus:
             if servo.powered:
                 servo.latch_errors(servo.memory.table.error_bits[name])
 
-    def powercycle(self, servo_id: int) -> None:
+    def powercycle(self, servo_id: ServoRef) -> None:
         """Cut the power and restore it: RAM defaults, torque off, boot time before it answers."""
         with self.lock:
             slot = self._slot(servo_id)
@@ -295,14 +315,14 @@ class SimBus:
             if slot.plugged:
                 slot.servo.power_on(now_s)
 
-    def unplug(self, servo_id: int) -> None:
+    def unplug(self, servo_id: ServoRef) -> None:
         """Take the servo off the bus (and off the power)."""
         with self.lock:
             slot = self._slot(servo_id)
             slot.servo.power_off(self._clock())
             slot.plugged = False
 
-    def plug(self, servo_id: int) -> None:
+    def plug(self, servo_id: ServoRef) -> None:
         """Put the servo back on the bus: a power-on."""
         with self.lock:
             slot = self._slot(servo_id)
@@ -311,7 +331,7 @@ class SimBus:
             slot.plugged = True
             slot.servo.power_on(self._clock())
 
-    def set_load(self, servo_id: int, load_nm: float) -> None:
+    def set_load(self, servo_id: ServoRef, load_nm: float) -> None:
         """Apply a resisting torque at the horn."""
         load_nm = float(load_nm)
         if not load_nm >= 0.0 or load_nm == float('inf'):
@@ -321,7 +341,7 @@ class SimBus:
             servo.advance(self._clock())
             servo.dynamics.set_load(load_nm)
 
-    def set_voltage(self, servo_id: int, volts: float) -> None:
+    def set_voltage(self, servo_id: ServoRef, volts: float) -> None:
         """Set the servo's supply voltage."""
         volts = float(volts)
         if not 0.0 <= volts <= 30.0:
@@ -331,16 +351,102 @@ class SimBus:
             servo.advance(self._clock())
             servo.dynamics.set_input_voltage(volts)
 
+    def turn(self, servo_id: ServoRef, rad: float, seconds: float = TURN_SECONDS) -> None:
+        """
+        Turn the horn by hand to rad (servo radians) at constant speed over seconds (0: at once).
+
+        It stops at an end stop on the way; ValueError while torque is on (the motor holds it).
+        The horn stays where it is left.
+        """
+        with self.lock:
+            self._servo(servo_id).turn(self._clock(), float(rad), float(seconds))
+
+    def set_stops(self, servo_id: ServoRef, stops: tuple[float, float] | None) -> None:
+        """
+        Put mechanical end stops at (MIN, MAX) servo radians, or take them away (None).
+
+        Nothing moves the horn past them. ValueError if the horn is not between them now.
+        """
+        with self.lock:
+            self._servo(servo_id).set_stops(self._clock(), stops)
+
     # ---- helpers ------------------------------------------------------------------------------
-    def _slot(self, servo_id: int) -> _Slot:
-        for slot in self._slots:
-            if slot.servo.servo_id == servo_id:
-                return slot
+    def _slot(self, servo_id: ServoRef) -> _Slot:
+        """Return the slot a ServoRef names; ValueError naming the slots of an ambiguous id."""
+        if isinstance(servo_id, str):
+            number = _slot_number(servo_id)
+            if not 1 <= number <= len(self._slots):
+                count = len(self._slots)
+                raise ValueError(f'no servo {servo_id} on the bus (it has #1..#{count})')
+            return self._slots[number - 1]
+        found = [number for number, slot in enumerate(self._slots, 1)
+                 if slot.servo.servo_id == servo_id]
+        if len(found) == 1:
+            return self._slots[found[0] - 1]
+        if found:
+            names = ', '.join(f'#{number}' for number in found)
+            raise ValueError(f'id {servo_id} is ambiguous: servos {names} have it; name one as #N')
         known = sorted(slot.servo.servo_id for slot in self._slots)
         raise ValueError(f'no servo with id {servo_id!r} on the bus (ids: {known})')
 
-    def _servo(self, servo_id: int) -> SimServo:
+    def _servo(self, servo_id: ServoRef) -> SimServo:
         return self._slot(servo_id).servo
+
+
+def _slot_number(ref: str) -> int:
+    """Return N of a '#N' reference; ValueError if it is not one."""
+    digits = ref[1:]
+    if not ref.startswith('#') or not digits.isdigit():
+        raise ValueError(f"bad servo reference {ref!r}: expected an id or '#N'")
+    return int(digits)
+
+
+def _per_servo(what: str, ids: list[int], given: Mapping[int, Any] | Sequence[Any] | None,
+               default: Any) -> list[Any]:
+    """Return one value per servo from a mapping by id or a list in the order of ids."""
+    if given is None:
+        return [default] * len(ids)
+    if isinstance(given, Mapping):
+        strays = sorted(set(given) - set(ids))
+        if strays:
+            raise ValueError(f'{what} names ids {strays}, which are not on the bus {ids}')
+        return [given.get(servo_id, default) for servo_id in ids]
+    values = list(given)
+    if len(values) != len(ids):
+        raise ValueError(f'{what}: {len(values)} given for {len(ids)} servos')
+    return [default if value is None else value for value in values]
+
+
+def _ranks(answered: list[tuple[int, int, Reply]]) -> list[list[tuple[int, Reply]]]:
+    """Return the replies grouped by wire rank, in wire order: (servo index, reply) each."""
+    answered.sort(key=lambda entry: (entry[0], entry[1]))
+    groups: list[list[tuple[int, Reply]]] = []
+    last_rank = -1
+    for rank, index, reply in answered:
+        if not groups or rank != last_rank:
+            groups.append([])
+            last_rank = rank
+        groups[-1].append((index, reply))
+    return groups
+
+
+def _on_the_wire(answered: list[tuple[int, int, Reply]], baud_bps: int) -> list[Reply]:
+    """Return the replies in wire order, those answering at one rank collided into one."""
+    return [group[0][1] if len(group) == 1 else _collide(group, baud_bps)
+            for group in _ranks(answered)]
+
+
+def _collide(group: list[tuple[int, Reply]], baud_bps: int) -> Reply:
+    """
+    Return what the line carries when these servos answer at once (sim/collision.py).
+
+    Each starts its Return Delay Time after the request, plus its skew: SKEW_BITS bit times
+    per place in the bus's order, so that no two start in the same bit.
+    """
+    streams = [(round(reply.return_delay_s * baud_bps) + SKEW_BITS * index, reply.data)
+               for index, reply in group]
+    first_bit = min(start for start, _ in streams)
+    return Reply(wired_and(streams), group[0][1].servo_id, first_bit / baud_bps)
 
 
 def _probability(probability: float) -> float:
@@ -350,25 +456,34 @@ def _probability(probability: float) -> float:
     return probability
 
 
-def _fast_reply(parts: list[Reply], lengths: tuple[int, ...]) -> list[Reply]:
+def _fast_reply(ranks: list[list[tuple[int, Reply]]], lengths: tuple[int, ...]) -> list[Reply]:
     """
     Frame the parts of a fast read into the one status packet the servos put on the wire.
 
-    lengths are those of every servo asked (the length field counts them all). The manual does
-    not say what real servos do when one of those asked is silent; here its part is left out
-    and the rest follow, so the packet is shorter than its length field. The first servo that
-    answers sets the return delay.
+    ranks holds the parts at each place of the packet (several: servos sharing an id, whose
+    parts collide there; the first one's is framed, the others' are sent over it, each its
+    skew later). lengths are those of every servo asked (the length field counts them all).
+    The manual does not say what real servos do when one of those asked is silent; here its
+    part is left out and the rest follow, so the packet is shorter than its length field. The
+    first servo that answers sets the return delay.
     """
-    if not parts:
+    if not ranks:
         return []
+    parts = [group[0][1] for group in ranks]
     packet = bytearray(encode_fast_status(
         [(part.data[0], part.data[1], part.data[2:]) for part in parts], lengths))
     offset = FAST_HEAD_SIZE
-    for part in parts:
+    overlays: list[tuple[int, bytes]] = []
+    for group in ranks:
+        index, part = group[0]
         if part.flip_bit >= 0:
             packet[offset + part.flip_bit // 8] ^= 1 << (part.flip_bit % 8)
+        for other_index, other in group[1:]:
+            overlays.append((offset * BITS_PER_FRAME + SKEW_BITS * (other_index - index),
+                             other.data))
         offset += len(part.data) + 2
-    return [Reply(bytes(packet), BROADCAST_ID, parts[0].return_delay_s)]
+    data = wired_and([(0, bytes(packet)), *overlays]) if overlays else bytes(packet)
+    return [Reply(data, BROADCAST_ID, parts[0].return_delay_s)]
 
 
 def _fast_lengths(packet: Packet, count: int) -> tuple[int, ...]:

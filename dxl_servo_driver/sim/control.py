@@ -7,10 +7,17 @@ carries it out. The console (handle_line), its `help` answer (HELP_TEXT), `virtu
 (commands_help) and the docs (commands_markdown) all read it: a command is added as a row, beside
 the SimBus or FaultEngine method it calls.
 
-Three groups of commands: faults of one servo (SimBus: `drop ID P`, `error ID KIND`, ...),
+Four groups of commands: faults of one servo (SimBus: `drop ID P`, `error ID KIND`, ...),
 faults of the USB adapter between the servos and the pty (`adapter ...`: the FaultEngine of
-sim/adapter_faults.py, which acts on every reply), and inspection (`get`, `dump`, `stats`,
-`help`).
+sim/adapter_faults.py, which acts on every reply), a hand on a servo's horn (`turn`, `stops`),
+and inspection (`get`, `dump`, `stats`, `help`).
+
+A servo is named by its id when exactly one servo (plugged or not) has it, or by `#N`, the N-th
+servo of `--ids` (1-based), which stays that servo after its id changes: several servos may
+share an id (every new servo is id 1), and a shared id is an error naming their `#N`s. The
+argument's word stays ID in the usages (the contract between the simulator's users calls it
+REF). An argument may be optional (shown `[WORD]`, last), and one may stand for the rest of the
+line in another form (`stops ID MIN_RAD MAX_RAD|off`: `off` in place of MIN_RAD MAX_RAD).
 
 Pure: no I/O. `parse` turns a line into a Command or raises ControlError; `execute` runs a Command
 against a bus (and the adapter in front of it) and returns the one answer line; `handle_line`
@@ -24,11 +31,12 @@ from typing import Callable, Iterator
 from dxl_servo_driver.models import ALL_MODELS, Model
 from dxl_servo_driver.protocol import MAX_ID
 from dxl_servo_driver.sim.adapter_faults import FaultEngine
-from dxl_servo_driver.sim.bus import ERROR_KINDS, SimBus
+from dxl_servo_driver.sim.bus import ERROR_KINDS, ServoRef, SimBus, TURN_SECONDS
 from dxl_servo_driver.sim.memory import MANUAL_MODEL
 
 MAX_SERVO_ID = MAX_ID  # 253..255 are reserved / broadcast in Protocol 2.0
 MAX_TICK_MS = MANUAL_MODEL.item('realtime_tick').maximum   # the Realtime Tick's range
+MAX_SLOTS = 1000   # the #N a line may name (a bus has as many servos as --ids lists)
 _KIND_WORDS = '|'.join(ERROR_KINDS)
 # The bus the control lines act on (the name is kept from when it was a Protocol of its own).
 ControlledBus = SimBus
@@ -43,13 +51,19 @@ class Command:
     """A parsed control line."""
 
     name: str
-    servo_id: int | None = None
+    servo_id: int | None = None     # the servo by id (None: by slot, or no servo)
     value: float | None = None      # the first number: probability, N*m, volts, ms, bytes
     text: str | None = None         # error kind, on|off or register name (addresses resolved)
     # The address a register was named by: resolved again against the servo's own model when
     # the line runs (126 is present_current on most models, present_load on an XL430).
     address: int | None = field(default=None, compare=False)
     extra: tuple[float, ...] = ()   # the numbers after the first (a range's bounds)
+    slot: int | None = None         # the servo as #N, the N-th of the bus (1-based)
+
+    @property
+    def servo(self) -> int | str | None:
+        """Return the servo the line names: its id, or '#N' (SimBus's ServoRef)."""
+        return self.servo_id if self.slot is None else f'#{self.slot}'
 
     @property
     def numbers(self) -> tuple[float, ...]:
@@ -67,11 +81,25 @@ class Arg:
     read: Callable[[str], object]   # token -> value; ControlError when it is bad
     slot: str                       # the Command field it fills: id, number, text or register
     short: str = ''                 # in the one-line help answer, when shorter than word
+    optional: bool = False          # may be left out (the last arguments only)
+    # A word that may stand in its place and end the line (the other form of the command).
+    instead: str = ''
 
     @property
     def help_word(self) -> str:
         """Return its word in the one-line help answer."""
         return self.short or self.word
+
+
+def _parse_servo(token: str) -> int | tuple[str, int]:
+    """Return an id, or ('#', N) for the N-th servo of the bus."""
+    if not token.startswith('#'):
+        return _parse_id(token)
+    digits = token[1:]
+    if not digits.isdigit() or not 1 <= int(digits) <= MAX_SLOTS:
+        raise ControlError(f'bad servo {token!r}: expected an id 0..{MAX_SERVO_ID} or #N, '
+                           f'N 1..{MAX_SLOTS}')
+    return '#', int(digits)
 
 
 def _parse_id(token: str) -> int:
@@ -153,7 +181,8 @@ def _ms(word: str) -> Arg:
     return Arg(word, 'milliseconds, >= 0', _number('duration (ms)', 0.0), 'number')
 
 
-SERVO_ID = Arg('ID', f'servo id, 0..{MAX_SERVO_ID}', _parse_id, 'id')
+SERVO_ID = Arg('ID', f'a servo: its id, 0..{MAX_SERVO_ID}, when one servo has it, or #N, the '
+               'N-th of --ids', _parse_servo, 'id')
 PROBABILITY = Arg('PROBABILITY', 'probability, 0..1', _number('probability', 0.0, 1.0), 'number',
                   short='P')
 TORQUE = Arg('NM', 'torque in N*m, >= 0', _number('torque (N*m)', 0.0), 'number')
@@ -175,6 +204,13 @@ MIN_BYTES = Arg('MIN_BYTES', 'bytes, an integer >= 1', _number('size (bytes)', 1
                 'number')
 MAX_BYTES = Arg('MAX_BYTES', 'bytes, an integer >= 1', _number('size (bytes)', 1, integer=True),
                 'number')
+ANGLE = Arg('RAD', 'servo radians (Present Position = center + RAD / rad per pulse), any '
+            'number of turns', _number('angle (rad)', -math.inf), 'number')
+TURN_TIME = Arg('SECONDS', f'seconds the turn takes, >= 0 (default {TURN_SECONDS:g}; 0: at once)',
+                _number('time (s)', 0.0), 'number', optional=True)
+STOP_MIN = Arg('MIN_RAD', 'servo radians', _number('angle (rad)', -math.inf), 'number',
+               instead='off')
+STOP_MAX = Arg('MAX_RAD', 'servo radians', _number('angle (rad)', -math.inf), 'number')
 
 
 # ---- what the commands act on ---------------------------------------------------------------
@@ -204,17 +240,30 @@ class Spec:
     @property
     def usage(self) -> str:
         """Return the usage: the name and the arguments' words."""
-        return ' '.join((self.name, *(arg.word for arg in self.args)))
+        return _usage(self.name, self.args, [arg.word for arg in self.args])
 
     @property
     def help_usage(self) -> str:
         """Return the usage in the one-line help answer."""
-        return ' '.join((self.name, *(arg.help_word for arg in self.args)))
+        return _usage(self.name, self.args, [arg.help_word for arg in self.args])
 
 
-def _sid(command: Command) -> int:
-    assert command.servo_id is not None  # parse() fills what the row's arguments name
-    return command.servo_id
+def _usage(name: str, args: tuple[Arg, ...], words: list[str]) -> str:
+    """Return a usage: optional words in brackets, a word's stand-in after the rest (|off)."""
+    out = [name]
+    for number, (arg, word) in enumerate(zip(args, words)):
+        out.append(f'[{word}]' if arg.optional else word)
+        if arg.instead:
+            out += words[number + 1:]
+            out[-1] += f'|{arg.instead}'
+            break
+    return ' '.join(out)
+
+
+def _sid(command: Command) -> ServoRef:
+    servo = command.servo   # parse() fills what the row's arguments name
+    assert servo is not None
+    return servo
 
 
 def _value(command: Command) -> float:
@@ -242,6 +291,19 @@ def _get(target: Target, command: Command) -> str:
     return f'get {servo_id} {register}={target.bus.read_register(servo_id, register)}'
 
 
+def _turn(target: Target, command: Command) -> None:
+    numbers = command.numbers
+    seconds = numbers[1] if len(numbers) > 1 else TURN_SECONDS
+    target.bus.turn(_sid(command), numbers[0], seconds)
+
+
+def _stops(target: Target, command: Command) -> None:
+    if command.text == 'off':
+        target.bus.set_stops(_sid(command), None)
+        return
+    target.bus.set_stops(_sid(command), _span(command, 0, 'rad'))
+
+
 def _dump(target: Target, command: Command) -> str:
     servo_id = _sid(command)
     regs = target.bus.registers(servo_id)
@@ -264,6 +326,7 @@ def _noise(target: Target, command: Command) -> None:
 
 
 SERVO = 'faults of one servo'
+HAND = 'a hand on the horn (servo radians: what the driver reports with no offset or ratio)'
 ADAPTER = 'faults of the USB adapter between the servos and the pty (every reply)'
 INSPECTION = 'inspection'
 
@@ -316,6 +379,12 @@ COMMANDS: tuple[Spec, ...] = (
     Spec('adapter clear', (), 'every adapter fault off, a freeze ended',
          lambda t, c: _adapter(t).clear(), ADAPTER),
     Spec('adapter stats', (), 'what the adapter saw and did, counted', _adapter_stats, ADAPTER),
+    Spec('turn', (SERVO_ID, ANGLE, TURN_TIME),
+         "a hand turns ID's horn to RAD at constant speed over SECONDS and lets go (torque off "
+         'only; it stops at an end stop)', _turn, HAND),
+    Spec('stops', (SERVO_ID, STOP_MIN, STOP_MAX),
+         "mechanical end stops at MIN_RAD..MAX_RAD that nothing moves ID's horn past (a motor "
+         'pushing into one stalls); off: none', _stops, HAND),
     Spec('get', (SERVO_ID, REGISTER), 'read one register of ID', _get, INSPECTION),
     Spec('dump', (SERVO_ID,), 'every register of ID, one line', _dump, INSPECTION),
     Spec('stats', (), 'reply pacing statistics', _stats, INSPECTION),
@@ -365,20 +434,27 @@ def parse(line: str) -> Command:
     if not tokens:
         raise ControlError('empty line (try "help")')
     spec, args = _spec_of(tokens)
-    if len(args) != len(spec.args):
+    if not _fits(spec.args, args):
         raise ControlError(f'usage: {spec.usage}')
     servo_id: int | None = None
+    slot: int | None = None
     numbers: list[float] = []
     text: str | None = None
     address: int | None = None
     for arg, token in zip(spec.args, args):
+        if arg.instead and token.lower() == arg.instead:
+            text = arg.instead   # the other form: this word ends the line
+            break
         value = arg.read(token)
         if arg.slot == 'register':      # (name, the address it was named by or None)
             assert isinstance(value, tuple)
             text, address = value
         elif arg.slot == 'id':
-            assert isinstance(value, int)
-            servo_id = value
+            if isinstance(value, tuple):
+                slot = value[1]
+            else:
+                assert isinstance(value, int)
+                servo_id = value
         elif arg.slot == 'number':
             assert isinstance(value, float)
             numbers.append(value)
@@ -386,7 +462,16 @@ def parse(line: str) -> Command:
             assert isinstance(value, str)
             text = value
     first = numbers[0] if numbers else None
-    return Command(spec.name, servo_id, first, text, address, tuple(numbers[1:]))
+    return Command(spec.name, servo_id, first, text, address, tuple(numbers[1:]), slot)
+
+
+def _fits(args: tuple[Arg, ...], tokens: list[str]) -> bool:
+    """Return whether a line's argument tokens are as many as the row's arguments take."""
+    for number, arg in enumerate(args):
+        if arg.instead and number < len(tokens) and tokens[number].lower() == arg.instead:
+            return len(tokens) == number + 1
+    required = sum(1 for arg in args if not arg.optional)
+    return required <= len(tokens) <= len(args)
 
 
 def _said(spec: Spec, command: Command) -> str:
@@ -394,10 +479,16 @@ def _said(spec: Spec, command: Command) -> str:
     numbers: Iterator[float] = iter(command.numbers)
     words = [spec.name]
     for arg in spec.args:
+        if arg.instead and command.text == arg.instead:
+            words.append(arg.instead)
+            break
         if arg.slot == 'id':
-            words.append(str(command.servo_id))
+            words.append(str(command.servo))
         elif arg.slot == 'number':
-            words.append(f'{next(numbers):g}')
+            number = next(numbers, None)
+            if number is None:   # an optional argument left out
+                break
+            words.append(f'{number:g}')
         else:
             words.append(str(command.text))
     return ' '.join(words)
@@ -425,7 +516,7 @@ def execute(command: Command, bus: SimBus, stats_line: Callable[[], str] | None 
     return f'ok {_said(spec, command) if answer is None else answer}'
 
 
-def _register_of(command: Command, bus: SimBus, servo_id: int) -> str:
+def _register_of(command: Command, bus: SimBus, servo_id: ServoRef) -> str:
     """Return the register a get names, an address looked up in the servo's model's table."""
     assert command.text is not None
     if command.address is None:

@@ -48,6 +48,18 @@ velocity_profile.py):
   stall reads 1000 at any supply. They have no Goal Current nor Current Limit: nothing but the
   PWM limits their current.
 
+* A hand on the horn (turn): with torque off it turns the horn at constant speed to a
+  position and lets go; Present Velocity shows the hand's speed meanwhile, the windings being
+  open no current flows, and the horn stays where it is left (friction). Torque on ends a turn:
+  the motor holds the horn where the hand had it. An unpowered servo's horn turns too (nothing
+  is published until it is powered: then Present Position is re-initialised from it).
+* Mechanical end stops (set_stops): the horn never passes them. Motion into a stop ends there
+  with the speed at 0; a motor pushing into it is a stalled motor, drawing the current its
+  output drives at zero speed (the PWM limit's stall current, or Goal Current in the current
+  modes, whose current loop knows the horn cannot move). Hand and stops are fixed on the horn:
+  positions given in servo radians are turned into horn pulses through Present Position as it
+  is counted when they are given (its turns and the Homing Offset).
+
 One span of advance() (_run) is the motor, gearbox and overload timer of every mode, and one
 small controller per operating mode (_PositionControl for the three position modes,
 _VelocityControl, _CurrentControl, _PwmControl; _Free with torque off) gives the output each
@@ -228,10 +240,10 @@ class _Plant:
     """
 
     __slots__ = ('r_ohm', 'kt', 'ke', 'viscous', 'c1', 'ktr', 'denominator', 'friction', 'volts',
-                 'volts_eff')
+                 'volts_eff', 'low', 'high')
 
     def __init__(self, fitted: motor.Motor, load_nm: float, torque_on: bool,
-                 volts: float) -> None:
+                 volts: float, low: float = -math.inf, high: float = math.inf) -> None:
         self.r_ohm = fitted.resistance_ohm
         self.kt = fitted.torque_constant_nm_a
         self.ke = fitted.back_emf_v_s_rad
@@ -244,14 +256,24 @@ class _Plant:
         self.friction = fitted.coulomb_friction_nm + load_nm
         self.volts = volts
         self.volts_eff = volts if volts > 1e-6 else 1e-6
+        self.low = low     # the end stops, in horn pulses (+-inf: none)
+        self.high = high
 
-    def predict_omega(self, omega: float, current_a: float) -> float:
+    def predict_omega(self, omega: float, current_a: float, pos: float) -> float:
         """
         Speed at the end of the period if current_a flows (current loop's back-EMF estimate).
 
         A real current loop runs far faster than the 1 ms period; anticipating the speed change
-        keeps the held current exact while the horn accelerates.
+        keeps the held current exact while the horn accelerates, and at an end stop it knows
+        the horn pushed into it stays put.
         """
+        predicted = self._predict_free(omega, current_a)
+        if (predicted > 0.0 and pos >= self.high) or (predicted < 0.0 and pos <= self.low):
+            return 0.0
+        return predicted
+
+    def _predict_free(self, omega: float, current_a: float) -> float:
+        """Speed at the end of the period if current_a flows and nothing stops the horn."""
         friction_nm = self.friction
         torque = self.kt * current_a - self.viscous * omega
         if omega > 0.0:
@@ -264,9 +286,9 @@ class _Plant:
             torque -= math.copysign(friction_nm, torque)
         return omega + self.c1 * torque
 
-    def duty_for(self, current_a: float, omega: float, full: float) -> float:
+    def duty_for(self, current_a: float, omega: float, full: float, pos: float) -> float:
         """Return the output (PWM raw units) that drives current_a at the predicted speed."""
-        return (self.r_ohm * current_a + self.ke * self.predict_omega(omega, current_a)) \
+        return (self.r_ohm * current_a + self.ke * self.predict_omega(omega, current_a, pos)) \
             / self.volts_eff * full
 
 
@@ -320,7 +342,7 @@ class _CurrentControl:
     def step(self, omega: float, pos: float) -> _Step:
         """Return the output for Goal Current."""
         out_limit = self._out_limit
-        demand = self._plant.duty_for(self._goal_a, omega, self._full)
+        demand = self._plant.duty_for(self._goal_a, omega, self._full, pos)
         return (max(-out_limit, min(out_limit, demand)) / self._full,
                 abs(demand) > out_limit, False)
 
@@ -388,7 +410,7 @@ class _PositionControl:
                 target_a = limit_a
             elif target_a < -limit_a:
                 target_a = -limit_a
-            demand = plant.duty_for(target_a, omega, full)
+            demand = plant.duty_for(target_a, omega, full, pos)
         moved = _integrated(self.integral, error, demand, self._kpi, out_limit)
         if moved is not None:
             self.integral = moved
@@ -511,6 +533,13 @@ class ServoDynamics:
         self._remainder_s = 0.0
         # Position profile state, in horn coordinates (pulses without turn or homing offset).
         self._profile: Optional[PositionProfile] = None
+        # A hand turning the horn: pulses left to go, their sign, pulses per control period.
+        self._hand_left_pulse = 0.0
+        self._hand_sign = 1.0
+        self._hand_step_pulse = 0.0
+        # The mechanical end stops, in horn pulses (+-inf: none).
+        self.stop_low_pulse = -math.inf
+        self.stop_high_pulse = math.inf
         self.reset_controllers()
 
     # ----------------------------------------------------------------- readable physical state
@@ -518,6 +547,76 @@ class ServoDynamics:
     def motor_torque_nm(self) -> float:
         """Electromagnetic torque at the horn (before friction and load)."""
         return self.motor.torque_constant_nm_a * self.current_a
+
+    @property
+    def hand_turning(self) -> bool:
+        """Return whether a hand is turning the horn."""
+        return self._hand_left_pulse > 0.0
+
+    # ----------------------------------------------------------------- a hand, the end stops
+    def horn_pulse_of(self, rad: float, regs: RegisterStore) -> float:
+        """Return the horn position (pulses) at which Present Position reads rad (servo rad)."""
+        raw = self.model.position_zero_raw + rad * self._pulse_per_rad
+        return raw - self._turn_offset_pulse - _homing_offset(regs, self._homing_ignored)
+
+    def rad_of(self, horn_pulse: float, regs: RegisterStore) -> float:
+        """Return the servo radians Present Position reads at a horn position (pulses)."""
+        raw = horn_pulse + self._turn_offset_pulse + _homing_offset(regs, self._homing_ignored)
+        return (raw - self.model.position_zero_raw) / self._pulse_per_rad
+
+    def start_turn(self, rad: float, seconds: float, regs: RegisterStore) -> None:
+        """
+        Turn the horn by hand to rad (servo radians) at constant speed over seconds (0: at once).
+
+        The caller has checked that torque is off; the horn stops at an end stop on the way.
+        """
+        target = min(max(self.horn_pulse_of(rad, regs), self.stop_low_pulse),
+                     self.stop_high_pulse)
+        distance = target - self.horn_position_pulse
+        self._omega_rad_s = 0.0
+        periods = seconds / CONTROL_PERIOD_S
+        if periods < 1.0 or distance == 0.0:
+            self.horn_position_pulse = target
+            self._hand_left_pulse = 0.0
+            # Torque is off: the trajectory follows the horn (as _run keeps it).
+            self._traj_pulse = self._target_pulse = target
+            return
+        self._hand_sign = 1.0 if distance > 0.0 else -1.0
+        self._hand_left_pulse = abs(distance)
+        self._hand_step_pulse = abs(distance) / periods
+
+    def stop_hand(self) -> None:
+        """Let go of the horn: it stays where it is."""
+        if self._hand_left_pulse > 0.0:
+            self._hand_left_pulse = 0.0
+            self._omega_rad_s = 0.0
+
+    def hand_coast(self, dt_s: float) -> None:
+        """Move the horn of an unpowered servo as the hand turns it for dt_s (no registers)."""
+        if self._hand_left_pulse <= 0.0 or dt_s <= 0.0:
+            return
+        step = min(self._hand_step_pulse * dt_s / CONTROL_PERIOD_S, self._hand_left_pulse)
+        self._hand_left_pulse -= step
+        self.horn_position_pulse += self._hand_sign * step
+        if self._hand_left_pulse <= 0.0:
+            self._hand_left_pulse = 0.0
+            self._omega_rad_s = 0.0
+
+    def set_stops(self, low_rad: float, high_rad: float, regs: RegisterStore) -> None:
+        """Put end stops at low_rad..high_rad (servo radians); ValueError if the horn is not in."""
+        low = self.horn_pulse_of(low_rad, regs)
+        high = self.horn_pulse_of(high_rad, regs)
+        horn = self.horn_position_pulse
+        if not low <= horn <= high:
+            raise ValueError(f'the horn is at {self.rad_of(horn, regs):.4f} rad, outside the '
+                             f'stops {low_rad:g}..{high_rad:g} rad: turn it in between first')
+        self.stop_low_pulse = low
+        self.stop_high_pulse = high
+
+    def clear_stops(self) -> None:
+        """Take the end stops away."""
+        self.stop_low_pulse = -math.inf
+        self.stop_high_pulse = math.inf
 
     # ----------------------------------------------------------------- hooks
     def set_load(self, load_nm: float) -> None:
@@ -547,6 +646,8 @@ class ServoDynamics:
     def on_torque(self, enabled: bool, regs: RegisterStore) -> None:
         """Torque enable changed: restart the controllers from the present state."""
         self._torque_on = bool(enabled)
+        if self._torque_on:
+            self.stop_hand()   # the motor holds the horn where the hand had it
         self.reset_controllers()
         if self._torque_on:
             self._vel_traj_raw = self._omega_rad_s * self._velocity_unit_per_rad_s
@@ -679,7 +780,9 @@ class ServoDynamics:
         The mode's controller gives the output each period; the motor, the gearbox and the
         overload timer are the same in every mode.
         """
-        plant = _Plant(self.motor, self.load_nm, torque_on, volts)
+        low = self.stop_low_pulse
+        high = self.stop_high_pulse
+        plant = _Plant(self.motor, self.load_nm, torque_on, volts, low, high)
         controller = self._controller(regs, mode, torque_on, plant)
         control = controller.step
         dt = CONTROL_PERIOD_S
@@ -697,6 +800,10 @@ class ServoDynamics:
         duty = self.duty
         current = self.current_a
         overload_s = self._overload_s
+        hand_left = self._hand_left_pulse
+        hand_step = self._hand_step_pulse
+        hand_sign = self._hand_sign
+        hand_omega = hand_sign * hand_step / pulse_per_rad_dt
         sum_i2 = 0.0
         overload_seen = False
         frozen_count = 0
@@ -706,22 +813,39 @@ class ServoDynamics:
             previous_duty = duty
             previous_omega = omega
             duty, saturated, changing = control(omega, pos)
-            # ---- motor and gearbox (implicit in the linear terms, stiction at rest)
-            drive = ktr * duty * volts if torque_on else 0.0
-            if omega == 0.0:
-                if drive > friction:
-                    omega = c1 * (drive - friction) / denominator
-                elif drive < -friction:
-                    omega = c1 * (drive + friction) / denominator
-            elif omega > 0.0:
-                omega = (omega + c1 * (drive - friction)) / denominator
-                if omega < 0.0:
-                    omega = 0.0
+            if hand_left > 0.0:
+                # ---- a hand turns the horn (torque is off: the controller gives nothing)
+                moved = hand_step if hand_step < hand_left else hand_left
+                hand_left -= moved
+                pos += hand_sign * moved
+                omega = hand_omega if hand_left > 0.0 else 0.0
+                changing = True
             else:
-                omega = (omega + c1 * (drive + friction)) / denominator
-                if omega > 0.0:
-                    omega = 0.0
-            pos += 0.5 * (previous_omega + omega) * pulse_per_rad_dt
+                # ---- motor and gearbox (implicit in the linear terms, stiction at rest)
+                drive = ktr * duty * volts if torque_on else 0.0
+                if omega == 0.0:
+                    if drive > friction:
+                        omega = c1 * (drive - friction) / denominator
+                    elif drive < -friction:
+                        omega = c1 * (drive + friction) / denominator
+                elif omega > 0.0:
+                    omega = (omega + c1 * (drive - friction)) / denominator
+                    if omega < 0.0:
+                        omega = 0.0
+                else:
+                    omega = (omega + c1 * (drive + friction)) / denominator
+                    if omega > 0.0:
+                        omega = 0.0
+                pos += 0.5 * (previous_omega + omega) * pulse_per_rad_dt
+            # ---- the end stops: the horn stays at one it reaches, its speed 0
+            if pos > high:
+                pos = high
+                omega = 0.0
+                hand_left = 0.0
+            elif pos < low:
+                pos = low
+                omega = 0.0
+                hand_left = 0.0
             current = (duty * volts - ke * omega) / r_ohm if torque_on else 0.0
             sum_i2 += current * current
             if saturated and abs(current) > overload_current:
@@ -747,6 +871,7 @@ class ServoDynamics:
 
         self._omega_rad_s = omega
         self.horn_position_pulse = pos
+        self._hand_left_pulse = hand_left
         self.duty = duty
         self.current_a = current
         self._overload_s = overload_s

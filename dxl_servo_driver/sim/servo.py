@@ -18,8 +18,12 @@ sim/protocol2.py):
 - Torque enable 0 -> 1 in a position mode holds the horn where it is (the dynamics) and sets
   goal_position := present_position, so the register shows the goal the servo holds. A driver
   should still write goal = present first: in the other modes the goals are kept as written.
+- A hand may turn the horn only while torque is off (turn: with torque on the motor holds it);
+  it turns an unpowered servo's horn too. End stops (set_stops) bound the horn whatever moves
+  it (dynamics.py).
 """
 
+import math
 from typing import Protocol
 
 from dxl_servo_driver.models import Model, modes
@@ -61,6 +65,18 @@ class Dynamics(Protocol):
 
     def set_input_voltage(self, volts: float) -> None:
         """Set the supply voltage."""
+
+    def start_turn(self, rad: float, seconds: float, regs: Memory) -> None:
+        """Turn the horn by hand to rad (servo radians) over seconds."""
+
+    def hand_coast(self, dt_s: float) -> None:
+        """Move an unpowered servo's horn as the hand turns it."""
+
+    def set_stops(self, low_rad: float, high_rad: float, regs: Memory) -> None:
+        """Put end stops at low_rad..high_rad (servo radians)."""
+
+    def clear_stops(self) -> None:
+        """Take the end stops away."""
 
 
 class SimServo:
@@ -144,6 +160,7 @@ class SimServo:
         if dt_s <= 0.0:
             return
         if not self.powered:
+            self.dynamics.hand_coast(dt_s)   # a hand still turns an unpowered horn
             self._last_s = now_s
             return
         # The servo's controllers sample once per control period: packets closer together
@@ -164,6 +181,37 @@ class SimServo:
         self.advance(now_s)
         self._power_on_s = now_s - tick_ms / 1000.0
         self.memory.set('realtime_tick', tick_ms)
+
+    def turn(self, now_s: float, rad: float, seconds: float) -> None:
+        """
+        Turn the horn by hand to rad (servo radians) over seconds from now_s (0: at once).
+
+        ValueError while torque is on: the motor holds the horn.
+        """
+        if not seconds >= 0.0 or not math.isfinite(seconds) or not math.isfinite(rad):
+            raise ValueError(f'a turn needs a finite angle and a time >= 0 s, got {rad} rad '
+                             f'over {seconds} s')
+        self.advance(now_s)
+        if self.powered and self.memory.get('torque_enable'):
+            raise ValueError('torque is on: the motor holds it; use load')
+        self.dynamics.start_turn(rad, seconds, self.memory)
+        self._publish_now()
+
+    def set_stops(self, now_s: float, stops: tuple[float, float] | None) -> None:
+        """Put mechanical end stops at (low, high) servo radians, or take them away (None)."""
+        self.advance(now_s)
+        if stops is None:
+            self.dynamics.clear_stops()
+            return
+        low, high = stops
+        if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+            raise ValueError(f'bad stops {low:g}..{high:g} rad: expected finite MIN <= MAX')
+        self.dynamics.set_stops(low, high, self.memory)
+
+    def _publish_now(self) -> None:
+        """Show a change of the horn in the present registers at once (a zero-length step)."""
+        if self.powered:
+            self.latch_errors(self.dynamics.advance(0.0, self.memory))
 
     def latch_errors(self, bits: int) -> None:
         """Latch hardware error bits; drop torque for those set in `shutdown`."""

@@ -13,7 +13,9 @@ Model (README.md, The simulator: `--timing wire`):
   `latency_s` after the packet's last byte reached it. A real FTDI chip flushes its buffer when its
   latency timer expires, anywhere from 0 to the timer setting after the data arrived; using the
   full setting is the worst case and keeps the model deterministic.
-* Collisions (a host writing while servos still answer) are not modelled.
+* Servos answering one request at the same place in the wire order (sharing an id) collide:
+  sim/bus.py hands this module their replies already combined (sim/collision.py), one reply
+  from the first one's start. A host writing while servos still answer is not modelled.
 """
 
 import collections

@@ -3,14 +3,21 @@
 
   virtual_bus --ids 1 2 3 --baud 1000000 --link /tmp/ttyDXL [--timing instant|wire]
               [--latency-ms F] [--return-delay-time RAW] [--seed N]
-              [--models M [M ...]] [--firmware N]
+              [--models M [M ...]] [--firmware N] [--unplugged]
               [--trace-goals FILE] [--trace-state FILE]
+
+--ids may repeat an id: several servos sharing one (the factory state, `--ids 1 1 1 1 1 1
+--baud 57600 --return-delay-time 250`) answer together and their replies collide on the wire
+(sim/collision.py). The console names a servo by its id when only one has it, or by `#N`, the
+N-th of --ids. --unplugged starts every servo unplugged (configured, off the bus and the
+power): `plug ID` puts each on.
 
 Prints the pty's device path as its first stdout line, then answers control lines read on
 standard input (sim/control.py, whose table `virtual_bus --help` lists) with one line each.
 Clients read the device from that line, so the servos' models go to a start line on stderr
 instead:
-`virtual_bus: /dev/pts/N: id 1 XM430-W210 (model 1030, firmware 45), id 2 ...`.
+`virtual_bus: /dev/pts/N: id 1 XM430-W210 (model 1030, firmware 45), id 2 ...` (in --ids order, a
+shared id's servos tagged with their #N, `unplugged` after each servo that starts so).
 SIGINT/SIGTERM end it cleanly (exit 0) and remove the --link symlink. Standard input reaching
 EOF does not stop it.
 
@@ -35,6 +42,7 @@ the framing of Protocol 1.0 when every servo speaks 1.0 at start-up, else of Pro
 """
 
 import argparse
+import collections
 import errno
 import heapq
 import io
@@ -74,12 +82,15 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
 
     SimBus exposes no register writes, so this goes through the protocol at each servo's
     current baud and in the protocol it speaks, as a user would with a real servo. protocols
-    sets the Protocol Version of the servos that have one (an X servo on 1.0). Servos still
-    booting ignore packets, so it retries until the registers read back right.
+    sets the Protocol Version of the servos that have one (an X servo on 1.0), by id. Servos
+    still booting ignore packets, so it retries until the registers read back right. Servos
+    sharing an id hear one another's writes, as on a real bus: each is checked by its #N.
     """
     deadline_s = time.monotonic() + SETUP_TIMEOUT_S
-    for servo_id in bus.servo_ids():
-        model = bus.model(servo_id)
+    for number, servo in enumerate(bus.servos(), 1):
+        ref = f'#{number}'
+        servo_id = servo.servo_id
+        model = servo.model
         baud_raw = {bps: raw for raw, bps in model.bauds.items()}.get(baud_bps)
         if baud_raw is None:
             raise StartupError(f'servo {servo_id} ({model.label}) cannot run at {baud_bps} bps; '
@@ -94,11 +105,11 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
             wanted.append(('protocol_version', int(version)))
         for name, value in wanted:
             item = model.item(name)
-            while bus.read_register(servo_id, name) != value:
+            while bus.read_register(ref, name) != value:
                 if time.monotonic() > deadline_s:
                     raise StartupError(f'servo {servo_id} did not accept {name}={value}')
-                current_bps = model.bauds[bus.read_register(servo_id, 'baud_rate')]
-                if bus.servo(servo_id).protocol_version == 1:
+                current_bps = model.bauds[bus.read_register(ref, 'baud_rate')]
+                if servo.protocol_version == 1:
                     packet = protocol1.encode_instruction(
                         servo_id, protocol1.Instruction1.WRITE,
                         bytes((item.address,)) + item.encode(value))
@@ -107,7 +118,7 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
                         servo_id, protocol.Instruction.WRITE,
                         item.address.to_bytes(2, 'little') + item.encode(value))
                 bus.feed(packet, current_bps)
-                if bus.read_register(servo_id, name) != value:
+                if bus.read_register(ref, name) != value:
                     time.sleep(0.01)
 
 
@@ -169,7 +180,8 @@ class GoalTracer:
         memory = self._memories.get(servo_id)
         # A servo may change its id: its memory is then looked up again.
         if memory is None or memory.raw[memory.table.id_address] != servo_id:
-            self._memories = {sid: self._bus.servo(sid).memory for sid in self._bus.servo_ids()}
+            # (Servos sharing an id: the last one's map; they share the factory's anyway.)
+            self._memories = {servo.servo_id: servo.memory for servo in self._bus.servos()}
             memory = self._memories.get(servo_id)
             if memory is None:
                 return   # not a servo of this bus (broadcast, or an id nobody has)
@@ -224,8 +236,8 @@ class StateTracer:
         with bus.lock:
             wall_s = self._wall_clock()
             lines = ''.join(
-                f'{wall_s:.6f} {servo_id} {bus.servo(servo_id).memory.get("present_position")}\n'
-                for servo_id in bus.servo_ids())
+                f'{wall_s:.6f} {servo.servo_id} {servo.memory.get("present_position")}\n'
+                for servo in sorted(bus.servos(), key=lambda servo: servo.servo_id))
         self._out.write(lines)
         if now_s >= self._flush_s:
             self._flush_s = now_s + STATE_TRACE_FLUSH_S
@@ -413,7 +425,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                             epilog=control.commands_help(),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--ids', type=int, nargs='+', required=True,
-                        help=f'servo ids (0..{control.MAX_SERVO_ID})')
+                        help=f'servo ids (0..{control.MAX_SERVO_ID}); an id may repeat: servos '
+                             'sharing it answer together and collide (the console names them '
+                             '#N, the N-th of --ids)')
     parser.add_argument('--baud', type=int, default=57600,
                         help=f'servo baud rate, one of {bauds} (default 57600)')
     parser.add_argument('--link', default=None, help='make this symlink to the device')
@@ -431,6 +445,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--firmware', type=int, default=None, metavar='N',
                         help="Firmware Version the servos report (0..255); picks the model's "
                              'table for that firmware (default: the newest)')
+    parser.add_argument('--unplugged', action='store_true',
+                        help='start every servo unplugged (off the bus and the power; the '
+                             'console\'s "plug ID" puts one on)')
     parser.add_argument('--trace-goals', default=None, metavar='FILE',
                         help='append "<monotonic time> <id> <goal_position>" per goal written')
     parser.add_argument('--trace-state', default=None, metavar='FILE',
@@ -440,8 +457,6 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     bad_ids = [i for i in args.ids if not 0 <= i <= control.MAX_SERVO_ID]
     if bad_ids:
         parser.error(f'--ids: {bad_ids[0]} is not in 0..{control.MAX_SERVO_ID}')
-    if len(set(args.ids)) != len(args.ids):
-        parser.error('--ids: duplicate id')
     if args.baud not in bauds:
         parser.error(f'--baud {args.baud}: the servo supports {bauds}')
     if not args.latency_ms >= 0.0:
@@ -454,10 +469,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.firmware is not None and not 0 <= args.firmware <= 255:
         parser.error(f'--firmware {args.firmware}: expected 0..255')
     try:
-        args.models = _servo_models(args.ids, args.models, args.firmware)
+        # One per servo, in --ids order (an id may repeat); models: by id, as it always was.
+        args.slot_models = _servo_models(args.ids, args.models, args.firmware)
     except ValueError as exc:
         parser.error(str(exc))
-    for servo_id, model in args.models.items():
+    args.models = dict(zip(args.ids, args.slot_models))
+    for servo_id, model in zip(args.ids, args.slot_models):
         if args.baud not in model.bauds.values():
             parser.error(f'--baud {args.baud}: servo {servo_id} ({model.name}) supports '
                          f'{sorted(model.bauds.values())}')
@@ -474,8 +491,8 @@ def _model_of(token: str, firmware: int | None) -> Model:
 
 
 def _servo_models(ids: Sequence[int], tokens: Sequence[str] | None,
-                  firmware: int | None) -> dict[int, Model]:
-    """Return id -> model from --models (one for all ids, or one per id); ValueError if bad."""
+                  firmware: int | None) -> list[Model]:
+    """Return the servos' models from --models (one for all, or one per id); ValueError if bad."""
     if tokens is None:
         tokens = [str(xm430.MODEL_NUMBER)]
     if len(tokens) not in (1, len(ids)):
@@ -484,16 +501,26 @@ def _servo_models(ids: Sequence[int], tokens: Sequence[str] | None,
     chosen = [_model_of(token, firmware) for token in tokens]
     if len(chosen) == 1:
         chosen *= len(ids)
-    return dict(zip(ids, chosen))
+    return chosen
 
 
 def describe_servos(bus: SimBus) -> str:
-    """Return 'id 1 XM430-W210 (model 1030, firmware 45), id 2 ...' for the start line."""
+    """
+    Return 'id 1 XM430-W210 (model 1030, firmware 45), id 2 ...' for the start line.
+
+    In the order of --ids; a servo whose id another shares is '#N id 1 ...', and an unplugged
+    one ends with ' unplugged'.
+    """
+    servos = bus.servos()
+    counts = collections.Counter(servo.servo_id for servo in servos)
     parts = []
-    for servo_id in bus.servo_ids():
-        model = bus.model(servo_id)
-        firmware = bus.read_register(servo_id, 'firmware_version')
-        parts.append(f'id {servo_id} {model.name} (model {model.number}, firmware {firmware})')
+    for number, servo in enumerate(servos, 1):
+        model = servo.model
+        firmware = servo.memory.get('firmware_version')
+        tag = f'#{number} ' if counts[servo.servo_id] > 1 else ''
+        off = '' if bus.plugged(f'#{number}') else ' unplugged'
+        parts.append(f'{tag}id {servo.servo_id} {model.name} (model {model.number}, '
+                     f'firmware {firmware}){off}')
     return ', '.join(parts)
 
 
@@ -553,14 +580,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the virtual bus; return the exit status."""
     args = _parse_args(argv)
     try:
-        firmware = None if args.firmware is None else dict.fromkeys(args.ids, args.firmware)
-        bus = SimBus(args.ids, seed=args.seed, models=args.models, firmware=firmware)
+        firmware = None if args.firmware is None else [args.firmware] * len(args.ids)
+        bus = SimBus(args.ids, seed=args.seed, models=args.slot_models, firmware=firmware)
         configure_servos(bus, args.baud, args.return_delay_time)
     except (StartupError, ValueError) as exc:  # ValueError: SimBus refused the ids
         print(f'virtual_bus: error: {exc}', file=sys.stderr, flush=True)
         return 1
+    if args.unplugged:
+        for number in range(1, len(args.ids) + 1):
+            bus.unplug(f'#{number}')
     # The adapter's packets are cut by the framing of the protocol the servos speak.
-    framing = 1 if all(bus.servo(i).protocol_version == 1 for i in bus.servo_ids()) else 2
+    framing = 1 if all(servo.protocol_version == 1 for servo in bus.servos()) else 2
     adapter = FaultEngine(seed=args.seed, protocol=framing)
     server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0, adapter=adapter)
     trace_files: dict[str, TextIO] = {}
