@@ -296,6 +296,21 @@ class FaultEngine:
             del self._rx[:len(out)]
             return out
 
+
+    def release_to(self, fd: int, now_s: float) -> None:
+        """Write what is released by now to the host's end of a pty (non-blocking)."""
+        data = self.take(now_s, 1 << 20)
+        if not data:
+            return
+        try:
+            written = os.write(fd, data)
+        except BlockingIOError:
+            written = 0
+        if written < len(data):
+            # The client is not reading and the pty buffer is full: like an adapter's
+            # overflowing receive buffer, the rest is lost.
+            with self.cond:
+                self.stats.overflow_bytes += len(data) - written
     def readable(self, now_s: float) -> int:
         """Return how many bytes are released by now_s."""
         with self.cond:
@@ -797,16 +812,7 @@ class AdapterProxy(_Controls):
                 writable.poll(remaining_s * 1000.0)
 
     def _to_host(self) -> None:
-        data = self.engine.take(time.monotonic(), 1 << 20)
-        if not data:
-            return
-        try:
-            written = os.write(self._master, data)
-        except BlockingIOError:
-            written = 0
-        # The client is not reading and the pty buffer is full: like an adapter's overflowing
-        # receive buffer, the rest is lost.
-        self.engine.stats.overflow_bytes += len(data) - written
+        self.engine.release_to(self._master, time.monotonic())
 
     def _close_fds(self) -> None:
         for fd in (self._master, self._slave, self._upstream, self._wake_r, self._wake_w):

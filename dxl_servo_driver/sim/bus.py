@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import random
 import threading
 import time
-from typing import Any, Callable, Iterable, Mapping, Sequence, Union
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence, Union
 
 from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
@@ -143,12 +143,9 @@ class SimBus:
                         and event.packet.instruction in _FAST_READS
                         and event.packet.servo_id == BROADCAST_ID)
                 answered: list[tuple[int, int, Reply]] = []
-                for index, slot in enumerate(self._slots):
-                    servo = slot.servo
-                    if not slot.plugged or servo.baud_bps != baud_bps:
-                        continue
-                    servo_id = servo.servo_id
-                    status = servo.handle(event, now_s)
+                for index, slot in self._hearing(baud_bps):
+                    servo_id = slot.servo.servo_id
+                    status = slot.servo.handle(event, now_s)
                     if status is None:
                         continue
                     reply = (self._inject_part(slot, status, servo_id) if fast
@@ -167,16 +164,19 @@ class SimBus:
                 replies.extend(self._answer1(event, baud_bps, now_s))
             return replies
 
+    def _hearing(self, baud_bps: int) -> Iterator[tuple[int, _Slot]]:
+        """Yield (place in --ids, slot) of the servos on the bus at this baud: who hears it."""
+        for index, slot in enumerate(self._slots):
+            if slot.plugged and slot.servo.baud_bps == baud_bps:
+                yield index, slot
+
     def _answer1(self, event: ParseEvent, baud_bps: int, now_s: float) -> list[Reply]:
         """Return the Protocol 1.0 servos' replies to one 1.0 packet, in wire order."""
         order = protocol1.reply_order(event.packet) if event.crc_ok else None
         answered: list[tuple[int, int, Reply]] = []
-        for index, slot in enumerate(self._slots):
-            servo = slot.servo
-            if not slot.plugged or servo.baud_bps != baud_bps:
-                continue
-            servo_id = servo.servo_id
-            status = protocol1.handle(servo, event, now_s)
+        for index, slot in self._hearing(baud_bps):
+            servo_id = slot.servo.servo_id
+            status = protocol1.handle(slot.servo, event, now_s)
             if status is None:
                 continue
             # Past the header, id and length: the checksum fails, the packet is still framed.

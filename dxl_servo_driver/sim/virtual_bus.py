@@ -394,18 +394,7 @@ class VirtualBusServer:
 
     def _adapter_out(self) -> None:
         """Write what the adapter has released by now to the pty."""
-        adapter = self.adapter
-        data = adapter.take(self._clock(), 1 << 20)
-        if not data:
-            return
-        try:
-            written = os.write(self._master, data)
-        except BlockingIOError:
-            written = 0
-        if written < len(data):
-            # The pty buffer is full: what does not fit is lost (as on the direct path).
-            with adapter.cond:
-                adapter.stats.overflow_bytes += len(data) - written
+        self.adapter.release_to(self._master, self._clock())
 
 
 class _OneLineParser(argparse.ArgumentParser):
