@@ -296,7 +296,6 @@ class FaultEngine:
             del self._rx[:len(out)]
             return out
 
-
     def release_to(self, fd: int, now_s: float) -> None:
         """Write what is released by now to the host's end of a pty (non-blocking)."""
         data = self.take(now_s, 1 << 20)
@@ -311,6 +310,7 @@ class FaultEngine:
             # overflowing receive buffer, the rest is lost.
             with self.cond:
                 self.stats.overflow_bytes += len(data) - written
+
     def readable(self, now_s: float) -> int:
         """Return how many bytes are released by now_s."""
         with self.cond:
