@@ -19,7 +19,9 @@ others are counted apart, as failed.
 Then the speed cases: the node on recorded replies (ceiling_node.py: an infinitely fast bus,
 no simulator beside it) at N = 12, 24, 50; what `top` shows of the node at loop_rate 100 with 6
 servos at 1 Mbps, split by thread; 12 servos behind a 1 ms adapter; and the cycle in one
-process on recorded replies, hot and cold, with the memory blocks it leaves (cycle_cost.py).
+process on recorded replies, hot and cold, with the memory blocks it leaves (cycle_cost.py);
+a leader and a follower node, from a leader's horn turned to the follower's wire at 100, 200
+and 500 Hz (teleop_latency.py; alone: `python bench/run_bench.py teleop`).
 Results: bench-results/bench.json, bench-results/bench.png, a table and the targets on stdout.
 """
 
@@ -860,6 +862,11 @@ def main() -> int:
     out_dir.mkdir(exist_ok=True)
     if sys.argv[1:] == ['scale']:
         return main_scale(out_dir)
+    if sys.argv[1:] == ['teleop']:
+        from teleop_latency import lines as teleop_lines
+        with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
+            print('\n'.join(teleop_lines(teleop_case(pathlib.Path(tmp)))))
+        return 0
     if sys.argv[1:] == ['protocol1']:
         with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
             print(protocol1_line(protocol1_case(pathlib.Path(tmp))))
@@ -916,6 +923,8 @@ def speed_cases(workdir: pathlib.Path, failures: List[str]) -> Dict[str, Any]:
         ('adapter_latency', '12 servos behind a 1 ms adapter',
          lambda: adapter_latency(12, 4_000_000, 1.0, workdir)),
         ('cycle_cost', 'the cycle in one process, hot and cold', cycle_cost_case),
+        ('teleop', 'a leader and a follower at 100, 200, 500 Hz',
+         lambda: teleop_case(workdir)),
     ]
     for key, what, run in cases:
         print(f'bench: {what} ...', file=sys.stderr, flush=True)
@@ -953,7 +962,16 @@ def extra_lines(extra: Dict[str, Any]) -> List[str]:
     if extra.get('cycle_cost'):
         from cycle_cost import lines as cost_lines
         lines += cost_lines(extra['cycle_cost'])
+    if extra.get('teleop'):
+        from teleop_latency import lines as teleop_lines
+        lines += teleop_lines(extra['teleop'])
     return lines
+
+
+def teleop_case(workdir: pathlib.Path) -> Dict[str, Any]:
+    """Run bench/teleop_latency.py's case (a leader and a follower, their latency)."""
+    from teleop_latency import teleop_case as run   # it imports this module: not at the top
+    return run(workdir)
 
 
 def main_scale(out_dir: pathlib.Path) -> int:

@@ -93,6 +93,10 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'Velocity, current and PWM goals fall back to zero when no command arrived for '
               'this long (0 = off).', 's', 0.0, 3600.0, runtime=True),
     ParamSpec('autostart', bool, True, 'Configure and activate at start (lifecycle).'),
+    ParamSpec('trace', str, '',
+              'Bus trace file: every frame sent and received, with its time (monotonic us), '
+              'one line each; `dxl trace FILE` decodes it. Written from configure on (a new '
+              'file each time). Empty: off.'),
     ParamSpec('latency_timer', float, 16.0,
               'Latency timer of the USB adapter (16 ms is the Linux FTDI default; 1 ms with our '
               'udev rule). Used for reply deadlines and the bus-rate report. Checked at '
@@ -152,6 +156,33 @@ PARAMS: Tuple[ParamSpec, ...] = (
               0.0, 30.0, runtime=True, threshold=True),
     ParamSpec('voltage_high', float, 14.8, 'Diagnostics WARN above this input voltage.', 'V',
               0.0, 30.0, runtime=True, threshold=True),
+    # A follower (docs/teleoperation.md): its joints copy a leader node's joint_states.
+    ParamSpec('follow.topic', str, '',
+              "A leader node's joint_states (e.g. /leader/joint_states): this node follows it in "
+              'its own cycle, each joint copying `<joint>.follow`. Empty: not a follower.',
+              shown='(empty)'),
+    ParamSpec('follow.engaged', bool, True,
+              'Follow from the start (else from `~/follow` true); `~/follow` false stops it.'),
+    ParamSpec('follow.timeout', float, 0.25,
+              'A leader message older than this (by its stamp or its receipt) is stale: the '
+              'follower holds where it is until fresh ones come, then ramps back.', 's',
+              0.01, 60.0),
+    ParamSpec('follow.max_step', float, 0.05,
+              "The most a follower joint's goal moves in one cycle (LeRobot's "
+              'max_relative_target): a faster leader is followed at this pace.', 'rad',
+              1e-4, 10.0),
+    ParamSpec('follow.ramp_velocity', float, 0.5,
+              'Engaging (or resuming after a stale leader) with a joint farther than '
+              'follow.engage_tolerance from the leader moves it there at this speed.', 'rad/s',
+              1e-3, 100.0),
+    ParamSpec('follow.engage_tolerance', float, 0.05,
+              'How close to the leader a joint must be to follow it at once, without a ramp.',
+              'rad', 0.0, 10.0),
+    ParamSpec('follow.block_error', float, 0.5,
+              'A followed joint (not a gripper) whose position stays farther than this from its '
+              'goal for follow.block_time is blocked: the follower stops and holds. 0: never.',
+              'rad', 0.0, 100.0),
+    ParamSpec('follow.block_time', float, 1.0, 'See follow.block_error.', 's', 0.01, 60.0),
 )
 PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in PARAMS}
 RUNTIME_PARAMS: Tuple[str, ...] = tuple(spec.name for spec in PARAMS if spec.runtime)
@@ -219,6 +250,31 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               'rad (m)', only_for='gripper'),
     ParamSpec('gripper_closed', float, 0.0, 'The position of ratio 1 in ~/gripper commands '
               '(not gripper_open).', 'rad (m)', only_for='gripper'),
+    ParamSpec('torque', bool, True,
+              'false: a passive joint (a leader arm moved by hand): read and published, its '
+              'mode and EEPROM set up, never torqued (not at activate, whatever '
+              'torque_on_start, nor after a restart, reboot or reconnection); every command and '
+              'torque-on naming it is refused.'),
+    ParamSpec('trigger', bool, False,
+              "A leader's trigger (a gripper moved by the operator): held in "
+              'current_based_position at trigger_position with trigger_current, so that it '
+              'springs back there when let go; torque on at activate, even in a passive arm and '
+              'whatever torque_on_start; commands naming it are refused.'),
+    ParamSpec('trigger_position', float, None,
+              'Where the trigger rests (joint units): its goal position.', 'rad (m)', -1e6, 1e6,
+              shown='(required)', only_for='trigger'),
+    ParamSpec('trigger_current', float, None,
+              "The trigger spring's strength: its goal current, at most the model's Current "
+              'Limit.', 'A', 0.001, 100.0, shown='(required)', only_for='trigger'),
+    ParamSpec('follow', str, None,
+              "A follower's leader joint this joint copies (follow.topic); empty: not followed.",
+              shown="the joint's name"),
+    ParamSpec('follow_open', float, None,
+              "The leader gripper's gripper_open: the leader's travel follow_open..follow_closed "
+              "maps linearly onto this gripper's gripper_open..gripper_closed.", 'rad (m)',
+              only_for='gripper', shown="this joint's gripper_open"),
+    ParamSpec('follow_closed', float, None, "The leader gripper's gripper_closed (see "
+              'follow_open).', 'rad (m)', only_for='gripper', shown="this joint's gripper_closed"),
 )
 JOINT_PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in JOINT_PARAMS}
 JOINT_KEYS: Tuple[str, ...] = tuple(JOINT_PARAMS_BY_NAME)
@@ -263,6 +319,26 @@ class JointConfig:
     secondary_of: str = ''
     # The protocol its servo speaks (resolved: the joint's, else its model's, else the bus's).
     protocol: float = 2.0
+    # False: passive (read, never torqued). A trigger is held at trigger_position (joint units)
+    # with trigger_current (A) in current_based_position; the operator moves it, not ROS.
+    torque: bool = True
+    trigger: bool = False
+    trigger_position: float = 0.0
+    trigger_current: float = 0.0
+    # A follower's: the leader joint it copies (None: not followed), the leader gripper's
+    # travel (None: this gripper's own ends).
+    follow: Optional[str] = None
+    follow_open: Optional[float] = None
+    follow_closed: Optional[float] = None
+
+    def refusal(self) -> str:
+        """Return why this joint takes no command ('' when it does): passive, or a trigger."""
+        if not self.torque:
+            return f'joint {self.name!r} is passive (torque: false)'
+        if self.trigger:
+            return (f'joint {self.name!r} is a trigger (trigger: true): the operator moves it, '
+                    'not ROS')
+        return ''
 
     def secondary(self) -> 'JointConfig':
         """Return the configuration of the joint's second servo (secondary_id must be set)."""
@@ -325,6 +401,15 @@ class DriverConfig:
     temperature_error: float
     voltage_low: float
     voltage_high: float
+    follow_topic: str
+    follow_engaged: bool
+    follow_timeout: float
+    follow_max_step: float
+    follow_ramp_velocity: float
+    follow_engage_tolerance: float
+    follow_block_error: float
+    follow_block_time: float
+    trace: str = ''
     joints: Tuple[JointConfig, ...] = field(default_factory=tuple)
 
     def joint(self, name: str) -> JointConfig:
@@ -333,6 +418,11 @@ class DriverConfig:
             if joint.name == name:
                 return joint
         raise KeyError(name)
+
+
+def field_of(name: str) -> str:
+    """Return the DriverConfig field of a parameter (follow.topic is follow_topic)."""
+    return name.replace('.', '_')
 
 
 def _agrees_with_the_table() -> None:
@@ -346,7 +436,8 @@ def _agrees_with_the_table() -> None:
     """
     fields = [(f.name, f.type) for f in dataclasses.fields(DriverConfig) if f.name != 'joints']
     # `joints`, a list of names in the table, is the joints themselves here.
-    table = [(spec.name, spec.kind.__name__) for spec in PARAMS if spec.name != 'joints']
+    table = [(field_of(spec.name), spec.kind.__name__) for spec in PARAMS
+             if spec.name != 'joints']
     written = [(name, kind if isinstance(kind, str) else kind.__name__) for name, kind in fields]
     apart = sorted(set(table) ^ set(written))
     if apart:
@@ -405,9 +496,9 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
     values: Dict[str, Any] = {}
     for spec in PARAMS:
         if spec.name in params:
-            values[spec.name] = check_spec(spec, params[spec.name])
+            values[field_of(spec.name)] = check_spec(spec, params[spec.name])
         else:
-            values[spec.name] = spec.default
+            values[field_of(spec.name)] = spec.default
     joint_names: List[str] = values.pop('joints')
     if not joint_names:
         raise ConfigError('joints', 'no joints configured (a list of joint names is required)')
@@ -475,6 +566,8 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
         wanted = _model(key, params[key])
     key = f'{name}.operating_mode'
     mode = _joint_value(params, name, 'operating_mode')
+    if key not in params and params.get(f'{name}.trigger') is True:
+        mode = 'current_based_position'   # a trigger's, unless the file says another
     if wanted is not None and mode not in wanted.modes:
         raise ConfigError(key, f'{wanted.name} has no {mode} mode (its modes: '
                           f'{", ".join(wanted.modes)})')
@@ -505,6 +598,8 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
                         _joint_value(params, name, 'goal_tolerance'),
                         *_frame_and_limits(params, name, registers),
                         *_secondary(params, name))
+    joint = _torque_and_trigger(params, joint, wanted)
+    joint = dataclasses.replace(joint, **_follow(params, name, gripper, ends))
     low, high = joint.position_limits()
     if low is not None and high is not None and not low < high:
         raise ConfigError(f'{name}.min_position', 'min_position..max_position leave nothing '
@@ -514,6 +609,87 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     # models have is judged at configure, against the model the servo answers with).
     _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
     return joint
+
+
+def _follow(params: Mapping[str, Any], name: str, gripper: bool,
+            ends: Sequence[float]) -> Dict[str, Any]:
+    """Return a joint's follow, follow_open and follow_closed (a gripper's: its own ends)."""
+    leader: Optional[str] = _joint_value(params, name, 'follow')
+    values: Dict[str, Any] = {'follow': name if leader is None else (leader or None)}
+    for key in ('follow_open', 'follow_closed'):
+        if f'{name}.{key}' in params and not gripper:
+            raise ConfigError(f'{name}.{key}', f'only a gripper (`{name}.gripper: true`) has '
+                              'this')
+        values[key] = _joint_value(params, name, key)
+    if (values['follow_open'] is None) != (values['follow_closed'] is None):
+        given = 'follow_open' if values['follow_closed'] is None else 'follow_closed'
+        raise ConfigError(f'{name}.{given}', 'give both follow_open and follow_closed (the '
+                          "leader gripper's travel), or neither")
+    if values['follow_open'] is not None and values['follow_open'] == values['follow_closed']:
+        raise ConfigError(f'{name}.follow_closed', f'equals follow_open '
+                          f"({values['follow_open']:g}): the leader's travel maps onto this "
+                          "gripper's")
+    if gripper and values['follow_open'] is None:
+        values['follow_open'], values['follow_closed'] = ends   # the same travel
+    return values
+
+
+def _torque_and_trigger(params: Mapping[str, Any], joint: JointConfig,
+                        wanted: Optional[models.Model]) -> JointConfig:
+    """Return the joint with its torque and trigger keys, checked (ConfigError if wrong)."""
+    name = joint.name
+    torque = _joint_value(params, name, 'torque')
+    trigger = _joint_value(params, name, 'trigger')
+    for key in ('trigger_position', 'trigger_current'):
+        if f'{name}.{key}' in params and not trigger:
+            raise ConfigError(f'{name}.{key}', f'only a trigger (`{name}.trigger: true`) has '
+                              'this')
+    if not trigger:
+        return dataclasses.replace(joint, torque=torque)
+    if not torque:
+        raise ConfigError(f'{name}.torque', 'a trigger is torqued (its motor is the spring): '
+                          'leave torque out (true), or make the joint passive without trigger')
+    mode = joint.operating_mode
+    if f'{name}.operating_mode' not in params:
+        mode = 'current_based_position'   # what a trigger runs in; another one given: refused
+        if wanted is not None and mode not in wanted.modes:
+            raise ConfigError(f'{name}.trigger', 'a trigger runs in current_based_position, '
+                              f'which the {wanted.name} has not (its modes: '
+                              f'{", ".join(wanted.modes)})')
+    elif mode != 'current_based_position':
+        raise ConfigError(f'{name}.operating_mode', 'a trigger springs back with a limited '
+                          'current: its operating_mode must be current_based_position, not '
+                          f'{mode}')
+    if joint.secondary_id is not None:
+        raise ConfigError(f'{name}.secondary_id', 'a trigger has one servo')
+    values = []
+    for key in ('trigger_position', 'trigger_current'):
+        value = _joint_value(params, name, key)
+        if value is None:
+            raise ConfigError(f'{name}.{key}', f'a trigger needs {key} (joint {name!r})')
+        values.append(value)
+    rest, current = values
+    low, high = joint.position_limits()
+    if (low is not None and rest < low) or (high is not None and rest > high):
+        raise ConfigError(f'{name}.trigger_position', f"{rest:g} is beyond the joint's limits "
+                          f'{"-inf" if low is None else f"{low:g}"}..'
+                          f'{"inf" if high is None else f"{high:g}"}')
+    # Against the file's Current Limit, else the pinned model's (the servo's own at configure).
+    table = wanted or models.model_for(xm430.MODEL_NUMBER)
+    if table.current_unit_a is None or not table.has('goal_current'):
+        raise ConfigError(f'{name}.trigger', f'the {table.name} has no current control: a '
+                          'trigger needs current_based_position')
+    given = joint.register_dict().get('current_limit')
+    if given is not None or wanted is not None:
+        raw = given if given is not None else table.item('current_limit').maximum
+        limit_a = raw * table.current_unit_a
+        if current > limit_a + 1e-9:
+            where = (f'{name}.registers.current_limit {raw}' if given is not None
+                     else f"the {table.name}'s Current Limit")
+            raise ConfigError(f'{name}.trigger_current', f'{current:g} A is above {where} '
+                              f'({limit_a:.4g} A)')
+    return dataclasses.replace(joint, operating_mode=mode, trigger=True, trigger_position=rest,
+                               trigger_current=current)
 
 
 def _with_protocol(joint: JointConfig, params: Mapping[str, Any],

@@ -381,6 +381,8 @@ class Manager:
     def _servo_trouble(self, servo: Servo) -> str:
         if not servo.online:
             return 'is not on the bus'
+        if servo.joint.refusal():
+            return 'takes no goals: ' + servo.joint.refusal()
         if servo.name in self.tasks:
             return f'is {servo.status or "busy"}'
         if servo.consecutive_failures >= SILENT_AFTER_FAILURES:
@@ -397,9 +399,27 @@ class Manager:
         except Refused as exc:
             return Result(False, str(exc))
 
-    def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
+    def command(self, kind: str, names: Sequence[str], values: Sequence[float],
+                owner: str = '') -> Result:
         """Queue goals (topic path): written by the next cycle's sync write."""
-        return self._goals.command(kind, names, values)
+        return self._goals.command(kind, names, values, owner)
+
+    def hold(self, names: Sequence[str], owner: str, why: str) -> None:
+        """Let only owner's goals reach these joints; others' are refused: 'joint <name> why'."""
+        with self._goals.lock:
+            for name in names:
+                self._goals.held[name] = (owner, why)
+
+    def release(self, owner: str) -> None:
+        """Let everyone command the joints owner held."""
+        with self._goals.lock:
+            for name in [n for n, (o, _) in self._goals.held.items() if o == owner]:
+                del self._goals.held[name]
+
+    def holder(self, name: str) -> str:
+        """Return why a joint takes no goals but its commander's ('' when it takes anyone's)."""
+        held = self._goals.held.get(name)
+        return '' if held is None else f'joint {name!r} {held[1]}'
 
     def command_now(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
         """Write goals at once (service path): answered after they were written."""

@@ -179,6 +179,9 @@ class Wire:
     def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
                  return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
         self.port = port
+        # The trace hook (trace_to): with a trace, the port is a TracedPort around the device;
+        # without, the device itself, so an untraced bus pays nothing for it.
+        self.trace: Optional[BusTrace] = None
         # A real device: its bytes come no faster than the wire carries them (Wire._read).
         self._paced = port_paced(port)
         self.baud_bps = baud_bps
@@ -267,10 +270,26 @@ class Wire:
         """Be suspicious of replies for a while (an anomaly happened)."""
         self._dirty_until = time.monotonic() + DIRTY_HOLD_S
 
-    def close(self) -> None:
-        """Close the port."""
+    def trace_to(self, trace: Optional['BusTrace']) -> None:
+        """Write every byte of the port to trace from now on (None: stop tracing)."""
         with self.lock:
-            self.port.close()
+            port = self.port.inner if isinstance(self.port, TracedPort) else self.port
+            self.trace = trace
+            self.attach(port)
+
+    def attach(self, port: RawPort) -> None:
+        """Put the bus on a port (the same device back after a loss), traced if the bus is."""
+        with self.lock:
+            self.port = port if self.trace is None else TracedPort(port, self.trace)
+
+    def close(self) -> None:
+        """Close the port (and the trace)."""
+        with self.lock:
+            try:
+                self.port.close()
+            finally:
+                if self.trace is not None:
+                    self.trace.close()
 
     # the port ------------------------------------------------------------------------------
     def _flush(self) -> None:
@@ -449,3 +468,119 @@ def port_lost(exc: BaseException) -> PortError:
     if isinstance(exc, PortError):
         return exc
     return PortError(f'port lost: {exc}; was the adapter unplugged?')
+
+
+class BusTrace:
+    """
+    A bus trace: every byte sent and received on a port, a line per write or read.
+
+    Each line is `<monotonic time in us> <direction> <bytes in hex>`: `tx` what went out, `rx`
+    what came in (as the reads returned it: a status packet may span lines, several may share
+    one), `drop` bytes waiting before a request that the bus threw away unread (late replies,
+    noise). `baud <bps>` marks a change of speed; lines starting with `#` are comments.
+    `dxl trace FILE` decodes it (tool/trace.py). Line-buffered: what a crash leaves is whole.
+    """
+
+    def __init__(self, path: str, baud_bps: int = 0, note: str = '') -> None:
+        """Open path for writing (OSError when it cannot be) and write the header."""
+        self.path = path
+        self._file = open(path, 'w', buffering=1, encoding='ascii')
+        self._lock = threading.Lock()
+        self.error = ''   # why the trace stopped early, if it did
+        try:
+            self._file.write('# dxl bus trace: <monotonic us> tx|rx|drop <hex bytes> | '
+                             f'baud <bps>{"; " + note if note else ""}\n')
+        except OSError:
+            self.close()
+            raise
+        if baud_bps:
+            self.baud(baud_bps)
+
+    def record(self, direction: str, data: bytes) -> None:
+        """Write one line: data went out (tx), came in (rx) or was dropped unread (drop)."""
+        self._write(f'{time.monotonic_ns() // 1000} {direction} {data.hex(" ")}\n')
+
+    def baud(self, baud_bps: int) -> None:
+        """Write that the line speed is now baud_bps."""
+        self._write(f'{time.monotonic_ns() // 1000} baud {baud_bps}\n')
+
+    def _write(self, line: str) -> None:
+        # A trace that cannot be written (a full disk) ends; the bus goes on: an OSError here
+        # would pass for the port's own and the port would be taken for lost.
+        with self._lock:
+            if self.error or self._file.closed:
+                return
+            try:
+                self._file.write(line)
+            except OSError as exc:
+                self.error = f'the trace {self.path} stopped: {exc}'
+                try:
+                    self._file.close()
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        """Close the file (idempotent)."""
+        with self._lock:
+            try:
+                self._file.close()
+            except OSError as exc:   # the last lines could not be flushed
+                self.error = self.error or f'the trace {self.path} stopped: {exc}'
+
+
+class TracedPort:
+    """A port that writes every byte through it to a BusTrace (the wire's trace hook)."""
+
+    def __init__(self, port: RawPort, trace: BusTrace) -> None:
+        self.inner = port
+        self._trace = trace
+
+    @property
+    def paced(self) -> bool:
+        """Return what the port says of its pacing (raw_port.port_paced)."""
+        return port_paced(self.inner)
+
+    @property
+    def waited(self) -> bool:
+        """Say whether the last read of the port had to wait for its bytes."""
+        return port_waited(self.inner)
+
+    @property
+    def baudrate(self) -> int:
+        """Return the line speed in bit/s."""
+        return self.inner.baudrate
+
+    @baudrate.setter
+    def baudrate(self, baud_bps: int) -> None:
+        self.inner.baudrate = baud_bps
+        self._trace.baud(baud_bps)
+
+    @property
+    def in_waiting(self) -> int:
+        """Return how many received bytes wait to be read."""
+        return self.inner.in_waiting
+
+    def write(self, data: bytes) -> int:
+        """Trace bytes and send them (traced first: a simulator answers inside its write)."""
+        self._trace.record('tx', bytes(data))
+        return self.inner.write(data)
+
+    def read(self, size: int, timeout_s: float) -> bytes:
+        """Read as the port does; trace what came."""
+        data = self.inner.read(size, timeout_s)
+        if data:
+            self._trace.record('rx', bytes(data))
+        return data
+
+    def reset_input_buffer(self) -> None:
+        """Drop what waits, traced as dropped: read out first, so the trace shows it."""
+        waiting = self.inner.in_waiting
+        if waiting:
+            data = self.inner.read(waiting, 0.0)
+            if data:
+                self._trace.record('drop', bytes(data))
+        self.inner.reset_input_buffer()
+
+    def close(self) -> None:
+        """Release the port."""
+        self.inner.close()

@@ -4,8 +4,8 @@ import dataclasses
 from typing import Any, Dict
 
 from dxl_servo_driver.config import (
-    ConfigError, DriverConfig, JOINT_PARAMS, JOINT_PARAMS_BY_NAME, PARAMS, RUNTIME_PARAMS,
-    THRESHOLDS, validate)
+    ConfigError, DriverConfig, field_of, JOINT_PARAMS, JOINT_PARAMS_BY_NAME, PARAMS,
+    RUNTIME_PARAMS, THRESHOLDS, validate)
 from dxl_servo_driver.models.names import OTHER_MODELS
 import pytest
 
@@ -171,7 +171,8 @@ def test_shipped_parameter_files_are_valid(name: str) -> None:
 
 def test_the_configuration_has_a_field_for_each_parameter_of_the_table() -> None:
     fields = {field.name for field in dataclasses.fields(DriverConfig)}
-    assert fields == {spec.name for spec in PARAMS}
+    # A dotted name (follow.topic) is the field follow_topic.
+    assert fields == {field_of(spec.name) for spec in PARAMS}
     # What is taken when comes from the table too.
     assert set(RUNTIME_PARAMS) >= set(THRESHOLDS) and 'loop_rate' in RUNTIME_PARAMS
     assert [spec.name for spec in PARAMS if spec.restart] == ['joints']

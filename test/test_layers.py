@@ -10,7 +10,7 @@ import pathlib
 
 PACKAGE = pathlib.Path(__file__).resolve().parent.parent / 'dxl_servo_driver'
 ROS_MODULES = ('rclpy', 'sensor_msgs', 'std_msgs', 'diagnostic_msgs', 'lifecycle_msgs',
-               'rcl_interfaces', 'dxl_servo_driver_msgs', 'builtin_interfaces')
+               'rcl_interfaces', 'dxl_servo_driver_msgs', 'builtin_interfaces', 'std_srvs')
 HARDWARE_MODULES = ('dynamixel_sdk', 'serial')
 # Modules allowed to import each group (paths relative to the package).
 ROS_ALLOWED: set = set()   # modules outside ros/ allowed to import ROS: none

@@ -49,14 +49,19 @@ class Goals:
         # The servos a configured range bounds (check_ranges), whatever mode they are in now;
         # a joint's second servo judges the joint by its own reading.
         self._ranged = tuple(servo for servo in ctx.roster.order
-                             if servo.joint.position_limits() != (None, None))
+                             if servo.joint.position_limits() != (None, None)
+                             and not servo.joint.refusal())   # never driven: never stopped
+        # One commander at a time: joints a commander holds (a follower's, while it follows)
+        # take only its goals; anyone else's are refused with why (joint -> (owner, why)).
+        self.held: Dict[str, Tuple[str, str]] = {}
 
-    def check(self, kind: str, names: Sequence[str], values: Sequence[float]) -> List[Goal]:
+    def check(self, kind: str, names: Sequence[str], values: Sequence[float],
+              owner: str = '') -> List[Goal]:
         """
         Validate goals and convert them to raw register values, clamped to the servo's limits.
 
         Nothing is queued here: BadRequest for what the command says, Refused for what the
-        joint or the port is doing now.
+        joint or the port is doing now (or a joint held by a commander other than owner).
         """
         if kind not in modes.COMMAND_KINDS:
             raise BadRequest(f'unknown command kind {kind!r}')
@@ -74,9 +79,14 @@ class Goals:
             servo = self._roster.by_name.get(name)
             if servo is None:
                 raise BadRequest(f'unknown joint {name!r}')
+            held = self.held.get(name)
+            if held is not None and held[0] != owner:
+                raise Refused(f'joint {name!r} {held[1]}')
             if servo.joint.secondary_of:
                 raise BadRequest(f'{name!r} is the second servo of joint '
                                  f'{servo.joint.secondary_of!r}: command the joint')
+            if servo.joint.refusal():   # passive or a trigger: nobody commands it
+                raise BadRequest(servo.joint.refusal())
             goals.extend(self._goal(servo, kind, value))
         return goals
 
@@ -134,11 +144,12 @@ class Goals:
             goals.append((target, command.register, clamped))
         return goals
 
-    def command(self, kind: str, names: Sequence[str], values: Sequence[float]) -> Result:
+    def command(self, kind: str, names: Sequence[str], values: Sequence[float],
+                owner: str = '') -> Result:
         """Queue goals (all or none): written by the next write."""
         with self.lock:
             try:
-                goals = self.check(kind, names, values)
+                goals = self.check(kind, names, values, owner)
             except Refused as exc:
                 return Result(False, str(exc))
             now = self._clock()

@@ -18,6 +18,7 @@ from dxl_servo_driver.driver.servo import ManagerError
 from dxl_servo_driver.errors import CommError, PortError
 from dxl_servo_driver.raw_port import RawPort
 from dxl_servo_driver.transports import PortFactory, Transport
+from dxl_servo_driver.wire import BusTrace
 
 RECONNECT_INTERVAL_S = 1.0   # a lost port is tried again this often
 
@@ -49,8 +50,15 @@ class PortWatch:
         before = self._ctx.link.bus
         latency_s = (before.latency_timer_s if before is not None
                      else config.latency_timer / 1000.0)
+        try:
+            trace = (BusTrace(config.trace, config.baud_rate, f'port {config.port}')
+                     if config.trace else None)
+        except OSError as exc:
+            self.port.close()
+            raise ManagerError(f'trace {config.trace!r} cannot be written: {exc}') from None
         bus = Bus(self.port, config.baud_rate, latency_timer_s=latency_s,
                   framer=FRAMERS[config.protocol])
+        bus.trace_to(trace)
         for servo in self._ctx.roster.order:
             bus.speak(servo.servo_id, FRAMERS[servo.joint.protocol])
         self._ctx.link.bus = bus
@@ -93,7 +101,7 @@ class PortWatch:
             self.port = self.transport.reopen(self.port)
         except (PortError, CommError, OSError):
             return False
-        bus.port = self.port
+        bus.attach(self.port)
         state = self._ctx.port
         state.lost = False
         state.error = ''

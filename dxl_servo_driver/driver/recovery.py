@@ -51,7 +51,7 @@ class Recovery:
         self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()))
         servo.restarts += 1
         self._log.warn(f'joint {servo.name!r} (id {servo.servo_id}) restarted on its own: '
-                       'restoring its configuration and mode; it will hold where it is')
+                       f'restoring its configuration and mode; {_afterwards(servo)}')
 
     def restore(self, servo: Servo, last_joint_pulses: Optional[int]) -> Steps:
         """
@@ -145,11 +145,13 @@ class Recovery:
         self._cycle.want_full()
         self._cycle.refresh()
         if task.kind == 'restore':
-            self._log.info(f'joint {servo.name!r}: restored after its restart, holding where '
-                           'it is')
+            self._log.info(f'joint {servo.name!r}: restored after its restart; '
+                           f'{_afterwards(servo, done=True)}')
         elif task.kind == 'recover':
             servo.health_time = 0.0
-            self._log.info(f'joint {servo.name!r}: recovered, configuration and torque restored')
+            self._log.info(f'joint {servo.name!r}: recovered, ' + (
+                'configuration and torque restored' if servo.joint.torque else
+                f'configuration restored; {_afterwards(servo, done=True)}'))
         elif task.kind == 'rejoin':
             self._log.info(f'joint {servo.name!r}: answering again')
 
@@ -211,3 +213,12 @@ class Recovery:
         if servo.name not in self._tasks and not self._port.lost:
             self.start(servo, 'restore', self.restore(servo, servo.last_joint_pulses()),
                        self._clock() + RETRY_BACKOFF_S)
+
+
+def _afterwards(servo: Servo, done: bool = False) -> str:
+    """Return what a restored servo does: holds, stays passive, or springs back (a trigger)."""
+    if not servo.joint.torque:
+        return 'passive (torque: false), never torqued'
+    if servo.joint.trigger:
+        return 'a trigger, its spring re-armed' if done else 'its trigger springs back to its rest'
+    return 'holding where it is' if done else 'it will hold where it is'

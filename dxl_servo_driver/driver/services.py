@@ -115,6 +115,8 @@ class Services:
         with self._lock:
             servos = self._servos_named(names)
             word = 'on' if enable else 'off'
+            if enable:
+                servos = _torqued(servos, named=bool(names))
 
             def action() -> Result:
                 try:
@@ -156,6 +158,9 @@ class Services:
                 raise BadRequest('no joint named')
             servos = self._servos_named(names)
             for servo in servos:
+                if servo.joint.trigger and mode != 'current_based_position':
+                    raise BadRequest(f'{servo.joint.refusal()}; it springs back with a limited '
+                                     f'current in current_based_position, not {mode}')
                 if mode not in servo.model.modes:
                     raise BadRequest(f'joint {servo.name!r} is a {servo.model.name}, which has '
                                      f'no {mode} mode (its modes: '
@@ -241,6 +246,11 @@ class Services:
                 registers.check_range(item, value)
             except ValueError as exc:
                 return Result(False, str(exc))
+            undriven = servo.joint.refusal()
+            if undriven and item.name in modes.GOAL_REGISTERS.values():
+                # Goal Current and Goal PWM are open to writes: not a passive joint's (it is
+                # never driven) nor a trigger's (they are its spring's).
+                return Result(False, f'{undriven}: {item.name} is not written to it')
             link = self._link
 
             def action() -> Result:
@@ -267,6 +277,22 @@ class Services:
                 self._goals.note_written(servo, item.name, value)
                 return Result(True, f'{name}.{item.name} (address {item.address}) = {value}')
             return self._request('write', action)
+
+
+def _torqued(servos: List[Servo], named: bool) -> List[Servo]:
+    """
+    Return the servos a torque-on takes: passive joints refused by name, or left out.
+
+    Named, a passive joint refuses the request whole (nothing is written); all joints (no
+    name) are every joint but the passive ones, refused when that leaves none.
+    """
+    passive = [servo for servo in servos if not servo.joint.torque]
+    if named and passive:
+        raise BadRequest(f'{passive[0].joint.refusal()}: it is never torqued')
+    left = [servo for servo in servos if servo.joint.torque]
+    if not left:
+        raise BadRequest('every joint is passive (torque: false): none is ever torqued')
+    return left
 
 
 def _register(table: models.Model, key: str) -> models.Item:

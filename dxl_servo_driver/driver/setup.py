@@ -47,6 +47,8 @@ class Setup:
         for servo in self._roster.order:
             if servo.online:
                 run(self.apply_configuration(servo))
+                if servo.joint.trigger:
+                    check_trigger(servo)
         self._set_return_delay()
 
     def _find_servos(self) -> None:
@@ -160,9 +162,9 @@ class Setup:
 
     # hold and torque ------------------------------------------------------------------------
     def activate(self, servos: List[Servo]) -> None:
-        """Goal = present for every servo, then torque on (if torque_on_start)."""
+        """Goal = present for every servo, then torque on as torque_at_start says."""
         for servo in servos:
-            servo.torque_wanted = self._ctx.config.torque_on_start
+            servo.torque_wanted = torque_at_start(servo, self._ctx.config.torque_on_start)
             try:
                 run(self.hold(servo))
             except (PortError, CommError) as exc:
@@ -177,20 +179,26 @@ class Setup:
         first (CLEAR, or the manual's formula when it cannot clear), and the whole turns it
         loses are kept in the joint's turn offset. After torque on the position is read again,
         and a frame change nobody predicted is caught at once.
+
+        A passive joint (torque: false) gets no goal and never torque, whoever asked; a trigger
+        holds its rest position with its spring's current, not where it is.
         """
         link = self._link
+        passive = not servo.joint.torque
+        if passive:
+            servo.torque_wanted = False
         torque = link.read(servo, 'torque_enable')
         yield
         present = link.read(servo, 'present_position')
         yield
         goal: Optional[int] = None
-        if servo.mode in modes.POSITION_MODES:
+        if passive:
+            pass   # it holds nothing: a goal would only wait for a torque it never gets
+        elif servo.mode in modes.POSITION_MODES:
             if not torque and servo.torque_wanted:
                 present = yield from self._into_one_turn(servo, present)
-            goal = clamp_position(servo, present)
-            goals = {'goal_position': goal}
-            if servo.mode == 'current_based_position':
-                goals['goal_current'] = _cbp_current(servo)
+            goals = _holding_goals(servo, present)
+            goal = goals['goal_position']
             yield from self._set_goals(servo, goals)
         else:
             register = modes.BY_NAME[servo.mode].holding_register
@@ -204,8 +212,12 @@ class Setup:
             if abs(after - present) >= servo.units.pulses_per_rev // 2:
                 keep_turns(servo, present, after)
                 if goal is not None:
-                    goal = clamp_position(servo, after)
+                    goal = _holding_goals(servo, after)['goal_position']
                     yield from self._set_goals(servo, {'goal_position': goal})
+            elif servo.joint.trigger:
+                # A servo may take its present position as its goal at torque on (the
+                # simulator does): the spring's rest is written again, with torque on.
+                yield from self._set_goals(servo, _holding_goals(servo, after))
             elif goal is not None and servo.goal_slot is not None:
                 # A servo may take its present position as its goal at torque on (the
                 # simulator does): a goal slot repeats goal_position with other goals, so the
@@ -353,6 +365,51 @@ def keep_turns(servo: Servo, before_raw: int, after_raw: int) -> None:
         servo.turn_offset = 0
         return
     servo.turn_offset += servo.units.kept_turns(before_raw, after_raw)
+
+
+def torque_at_start(servo: Servo, torque_on_start: bool) -> bool:
+    """Return whether a servo gets torque at activate: never passive, always a trigger."""
+    if not servo.joint.torque:
+        return False
+    return True if servo.joint.trigger else torque_on_start
+
+
+def _holding_goals(servo: Servo, present: int) -> Dict[str, int]:
+    """Return the goals a position-mode servo holds with: where it is, or a trigger's rest."""
+    if servo.joint.trigger:
+        return {'goal_position': trigger_rest(servo), 'goal_current': trigger_current(servo)}
+    goals = {'goal_position': clamp_position(servo, present)}
+    if servo.mode == 'current_based_position':
+        goals['goal_current'] = _cbp_current(servo)
+    return goals
+
+
+def trigger_rest(servo: Servo) -> int:
+    """Return a trigger's Goal Position: its trigger_position in the servo's frame now."""
+    raw = servo.units.position_from_rad(servo.joint.trigger_position) - servo.turn_offset
+    return clamp_position(servo, raw)
+
+
+def trigger_current(servo: Servo) -> int:
+    """Return a trigger's Goal Current (raw): its trigger_current, within Current Limit."""
+    limit = servo.limits.get('current_limit', servo.model.item('current_limit').initial)
+    return max(0, min(limit, servo.units.current_from_a(servo.joint.trigger_current)))
+
+
+def check_trigger(servo: Servo) -> None:
+    """Refuse (ManagerError) a trigger its servo cannot be: no current, or above its limit."""
+    joint = servo.joint
+    if servo.units.a_per_current_raw is None or 'current' not in servo.units.kinds:
+        raise ManagerError(f'joint {joint.name!r}: a trigger needs current control, which the '
+                           f'{servo.model.name} has not')
+    raw = servo.limits.get('current_limit', servo.model.item('current_limit').initial)
+    limit_a = servo.units.current_to_a(raw)
+    # Half a unit of slack: a limit given in A lands on the nearest raw value.
+    if joint.trigger_current > limit_a + servo.units.a_per_current_raw / 2:
+        raise ManagerError(f'joint {joint.name!r}: trigger_current {joint.trigger_current:g} A '
+                           f"is above the {servo.model.name}'s Current Limit {limit_a:.4g} A "
+                           f'(current_limit {raw}): lower it, or raise '
+                           f'{joint.name}.registers.current_limit')
 
 
 def _cbp_current(servo: Servo) -> int:

@@ -86,6 +86,12 @@ class Arm:
 
         Raises TrajectoryError (TrajectoryJointsError for its joints) saying what is wrong.
         """
+        servos = self._host.manager.servos
+        for name in msg.joint_names:
+            # A passive joint or a trigger is refused by name, before anything is checked.
+            refusal = servos[name].joint.refusal() if name in servos else ''
+            if refusal:
+                raise traj.TrajectoryJointsError(refusal)
         points = [traj.Point(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
                              tuple(p.positions), tuple(p.velocities)) for p in msg.points]
         start_s = time.monotonic() if now_s is None else now_s
@@ -94,6 +100,11 @@ class Arm:
             # The stamp is on the node's clock: the same distance from now on the cycle's.
             now_ns = self._host.get_clock().now().nanoseconds
             start_s += (stamp.sec * 10 ** 9 + stamp.nanosec - now_ns) * 1e-9
+        for name in msg.joint_names:
+            # A joint another commander holds (a follower's) is refused whole, with why.
+            held = self._host.manager.holder(name)
+            if held:
+                raise traj.TrajectoryJointsError(held)
         return traj.validate(list(msg.joint_names), points, self.limits(), start_s)
 
     def default_tolerances(self, joints: Sequence[str]) -> traj.Tolerances:

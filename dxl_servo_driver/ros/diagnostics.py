@@ -140,7 +140,7 @@ def _servo_status(node_name: str, config: DriverConfig, servo: Servo,
         'firmware_version': servo.firmware_version, 'operating_mode': servo.mode,
         'comm_errors': servo.comm_errors, 'stale_samples_refused': servo.stale_refused,
         'restarts': servo.restarts, 'recoveries': servo.recoveries,
-        'turn_offset_pulses': servo.turn_offset}
+        'turn_offset_pulses': servo.turn_offset, 'role': _role(servo)}
     if state is not None and servo.health_time:
         temperature = float(state[IDX_TEMPERATURE])
         voltage = servo.units.voltage_to_v(state[IDX_VOLTAGE])
@@ -161,6 +161,19 @@ def _servo_status(node_name: str, config: DriverConfig, servo: Servo,
             level = max(level, DiagnosticStatus.WARN)
             problems.append(f'input voltage {voltage:.1f} V')
     status.level = level
-    status.message = '; '.join(problems) or 'OK'
+    # A passive joint's torque off is what it is for: said, never a problem.
+    said = [] if servo.joint.torque and not servo.joint.trigger else [_role(servo)]
+    status.message = '; '.join(said + problems) or 'OK'
     status.values = _values(values)
     return status
+
+
+def _role(servo: Servo) -> str:
+    """Return what the joint is: driven, passive (never torqued), or a trigger (its spring)."""
+    joint = servo.joint
+    if not joint.torque:
+        return 'passive (torque: false)'
+    if joint.trigger:
+        return (f'trigger (rest {joint.trigger_position:g}, spring '
+                f'{joint.trigger_current:g} A)')
+    return 'driven'

@@ -23,6 +23,7 @@ from dxl_servo_driver.ros.actions import Actions
 from dxl_servo_driver.ros.arm import Arm
 from dxl_servo_driver.ros.cycle import CycleRunner
 from dxl_servo_driver.ros.diagnostics import diagnostics
+from dxl_servo_driver.ros.follow import Follow
 from dxl_servo_driver.ros.interfaces import Interfaces
 from dxl_servo_driver.ros.messages import JointTable, servo_states, time_msg
 from dxl_servo_driver_msgs.msg import ServoStateArray
@@ -81,8 +82,11 @@ class DriverNode(LifecycleNode):
         self.arm = Arm(self, self.config)
         # MoveIt's actions, on a node and executor of their own (ros/actions.py says why).
         self.actions = Actions(self)
+        # A follower copies a leader's joint_states (follow.topic) in the cycle: a step too.
+        self.follow = Follow(self)
         # The cycle steps the arm (trajectories, gripper goals) and publishes what it read.
-        self._runner = CycleRunner(self, self.config.loop_rate, self._publish, [self.arm])
+        self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
+                                   [self.arm, self.follow.follower])
         self._take_rates(self.config)
         self._last_state_s = 0.0
         self._joints = JointTable(self.manager.joints)
@@ -241,6 +245,7 @@ class DriverNode(LifecycleNode):
             self.manager = self._new_manager(config)
             self._take_rates(config)
             self.arm.take(config)
+            self.follow.take(config)
             self.get_logger().info('configure: using the parameters set since the last one')
         return True
 
@@ -309,6 +314,7 @@ class DriverNode(LifecycleNode):
             self.get_logger().warning('activate interrupted: stop requested')
             return TransitionCallbackReturn.FAILURE
         self._active = True
+        self.follow.start()
         self._runner.start(self.config.cycle_driver, bus_cycle_s)
         self.get_logger().info(
             f'active: {len(self.manager.active_servos())} servos on {self.config.port} at '
@@ -375,6 +381,7 @@ class DriverNode(LifecycleNode):
         self._active = False
         self._runner.stop()
         self.arm.cancel(why)
+        self.follow.stop(why)
 
     def _torque_off(self) -> str:
         """
@@ -468,6 +475,7 @@ class DriverNode(LifecycleNode):
             self.diagnostics_pub.publish(diagnostics(
                 self.get_fully_qualified_name(), self.config, self.manager,
                 self._runner.facts(), self._lifecycle_state(), self._thresholds,
-                self.get_clock().now().to_msg(), self.arm.facts(), self.arm.grasping()))
+                self.get_clock().now().to_msg(),
+                {**self.arm.facts(), **self.follow.follower.facts()}, self.arm.grasping()))
         except Exception as exc:  # noqa: B902 - a report must not stop the executor
             self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=10.0)

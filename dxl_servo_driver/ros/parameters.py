@@ -60,7 +60,7 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
     with) is declared once it is known (show_from_servos).
     """
     for spec in cfg.PARAMS:
-        value = getattr(config, spec.name) if spec.name != 'joints' else [
+        value = getattr(config, cfg.field_of(spec.name)) if spec.name != 'joints' else [
             joint.name for joint in config.joints]
         _redeclare(node, spec.name, value, descriptor(spec))
     for joint in config.joints:
@@ -110,7 +110,11 @@ def _joint_values(joint: cfg.JointConfig) -> Dict[str, Any]:
             'secondary_reverse': joint.secondary_reverse,
             'secondary_offset': (joint.offset if joint.secondary_offset is None
                                  else joint.secondary_offset),
-            'secondary_tolerance': joint.secondary_tolerance}
+            'secondary_tolerance': joint.secondary_tolerance,
+            'torque': joint.torque, 'trigger': joint.trigger,
+            'trigger_position': joint.trigger_position, 'trigger_current': joint.trigger_current,
+            'follow': joint.follow or '', 'follow_open': joint.follow_open,
+            'follow_closed': joint.follow_closed}
 
 
 def coerce(params: List[Parameter]) -> List[Parameter]:
