@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import functools
 import time
 from typing import (
-    Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Tuple, TypeVar, Union)
+    Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Set, Tuple, TypeVar, Union)
 
 from dxl_servo_driver.errors import (
     BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
@@ -54,6 +54,11 @@ class Sweep:
     garbled: List[int] = field(default_factory=list)    # ids whose answer failed its checksum
     noise: int = 0          # frames or bytes that were nobody's: a collision, a noisy line
     echoed: int = 0         # pings the adapter echoed
+    # A broadcast ping's answers carry the model number: {id: model number} of those answered.
+    models: Dict[int, int] = field(default_factory=dict)
+    # A broadcast ping's noise, placed between the clean answers around it (they come in
+    # ascending id): the ids whose answers it may be (Bus.broadcast_sweep).
+    suspects: List[int] = field(default_factory=list)
 
 
 Method = TypeVar('Method', bound=Callable[..., Any])
@@ -67,11 +72,29 @@ def sweep_spacing_s(baud_bps: int, framer: Framer) -> float:
 
 
 def broadcast_ping_s(baud_bps: int) -> float:
-    """Return how long a broadcast ping waits beyond the latency timer (Bus.broadcast_ping)."""
+    """
+    Return the longest a broadcast ping waits beyond the latency timer (Bus.broadcast_ping).
+
+    The SDK's wait, every id answering: the ping listens no longer than this even when the
+    line never falls quiet (a noisy line), and mostly far less (broadcast_quiet_s).
+    """
     answer = STATUS_OVERHEAD + PING_REPLY_PARAMS
     ping = len(PROTOCOL_2.encode(BROADCAST_ID, Instruction.PING))
     return ((ping + answer * (MAX_ID + 1)) * BITS_PER_BYTE / baud_bps
             + BROADCAST_PING_PER_ID_S * (MAX_ID + 1))
+
+
+def broadcast_quiet_s(baud_bps: int, return_delay_s: float, listen_s: float) -> float:
+    """
+    Return how long a broadcast ping's line must stay quiet before no servo can answer any more.
+
+    The answers come in ascending id, each its Return Delay Time after the one before ended
+    (the ping's, for the first): an answer still to come ends at most the longest Return Delay
+    Time and one answer's wire time after the last byte heard, and reaches the host within
+    listen_s (the adapter's latency timer and the deadline slack) after that.
+    """
+    answer = STATUS_OVERHEAD + PING_REPLY_PARAMS
+    return return_delay_s + answer * BITS_PER_BYTE / baud_bps + listen_s
 
 
 def _heard(frames: Sequence[Frame], requests: Dict[int, Request], leftover: int) -> Sweep:
@@ -99,6 +122,47 @@ def _heard(frames: Sequence[Frame], requests: Dict[int, Request], leftover: int)
     sweep.answered = sorted(set(sweep.answered))
     sweep.garbled = sorted(set(sweep.garbled) - set(sweep.answered))
     return sweep
+
+
+def _outside(buffer: bytes, frames: Sequence[Frame]) -> int:
+    """
+    Return how many bytes of buffer no frame holds: noise, or answers that collided.
+
+    The framer skips bytes before a header silently; two servos answering at once leave
+    garbage with no header in it at all, which a sweep must not take for silence.
+    """
+    covered = 0
+    reach = 0
+    for frame in sorted(frames, key=lambda frame: frame.start):
+        # A corrupt frame's span may hold the frames found by resynchronising inside it.
+        start = max(frame.start, reach)
+        if frame.end > start:
+            covered += frame.end - start
+            reach = frame.end
+    return len(buffer) - covered
+
+
+def _suspects(size: int, frames: Sequence[Frame], models: Dict[int, int],
+              echo: bytes) -> List[int]:
+    """
+    Return the ids a broadcast ping's noise may come from, by where it lies among the answers.
+
+    The answers come in ascending id: bytes that are no clean answer (garbage, a corrupt or
+    stray frame) between the answers of ids a and b can only be from ids a+1..b-1. Our own
+    ping coming back (an echoing adapter) is nobody's noise.
+    """
+    known = sorted((frame.start, frame.end, frame.servo_id if frame.raw != echo else None)
+                   for frame in frames
+                   if frame.raw == echo or (frame.crc_ok and frame.servo_id in models))
+    suspects: Set[int] = set()
+    reach, before = 0, -1
+    for start, end, servo_id in known + [(size, size, MAX_ID + 1)]:
+        if start > reach and servo_id is not None:   # something lies before this answer
+            suspects.update(range(before + 1, servo_id))
+        reach = max(reach, end)
+        if servo_id is not None:
+            before = servo_id
+    return sorted(suspects)
 
 
 def _to_servo(method: Method) -> Method:
@@ -268,8 +332,9 @@ class Transactions(Wire):
         Each ping goes out once the one before could have been answered on the wire, and the
         answers are read once, after the last: a sweep of 253 ids waits the adapter's latency
         timer once, not 253 times (Protocol 1.0 has no broadcast ping). What it finds are
-        candidates: the caller pings each again alone. Noise says the sweep cannot be trusted
-        (answers collided), and the caller then pings every id alone.
+        candidates: the caller pings each again alone. Noise (bytes no frame holds, frames of
+        nobody asked) says answers collided or the line is noisy: the caller sweeps smaller
+        groups to find whose (scan._locate).
         """
         reply_size = framer.status_overhead + framer.ping_reply_params
         requests = {servo_id: Request(framer.encode(servo_id, Instruction.PING), (servo_id,),
@@ -297,26 +362,83 @@ class Transactions(Wire):
             deadline = due_s + self.latency_timer_s + self.slack_s
             buffer += self._read(len(requests) * (longest + reply_size), deadline,
                                  to_deadline=True)
-            frames, end = framer.scan(
+            frames, _ = framer.scan(
                 buffer, 0, max(2 * (framer.ping_reply_params + 4) + 8, longest), True)
-        return _heard(frames, requests, len(buffer) - end)
+        return _heard(frames, requests, _outside(buffer, frames))
 
     def broadcast_ping(self) -> Dict[int, int]:
         """Return {id: model number} of every servo that answers a broadcast ping (2.0 only)."""
+        return self.broadcast_sweep().models
+
+    def broadcast_sweep(self) -> Sweep:
+        """
+        Send one broadcast ping (2.0 only); return who answered, garbled and noise heard.
+
+        The answers are read until the line has been quiet for broadcast_quiet_s (no servo
+        can answer after such a silence: each answers its Return Delay Time after the one
+        before it), or a clean answer of the last id came, and never longer than the SDK's
+        wait (broadcast_ping_s): with nobody there that is one answer's window, not 253.
+        Garbled answers (two servos with one id collide) and noise are counted, not dropped,
+        and placed among the clean answers (Sweep.suspects): the caller sweeps those ids.
+        """
         self._refuse_unless(self.framer.broadcast_ping, 'broadcast ping',
                             'ping the ids one by one')
-        request = Request(self.framer.encode(BROADCAST_ID, Instruction.PING),
-                          tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS)
+        framer = self.framer
+        request = Request(framer.encode(BROADCAST_ID, Instruction.PING),
+                          tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS,
+                          refusal_mask=framer.refusal_mask)
+        max_length = max(2 * (PING_REPLY_PARAMS + 4) + 8, len(request.packet))
+        buffer = bytearray()
         with self.lock:
             _, written_s = self._send(request.packet)
-            # Every id may answer: the replies are read to the deadline.
-            deadline = (written_s + broadcast_ping_s(self.baud_bps) + self.latency_timer_s
-                        + self.slack_s)
-            collected = self._collect(request, deadline, bytearray(), True, lambda found: False)
-            self._note_echo(collected.echoed, bool(collected.answers))
-        return {servo_id: data[0] | (data[1] << 8)
-                for servo_id, (_, error, data) in collected.answers.items()
-                if len(data) == PING_REPLY_PARAMS}
+            listen_s = self.latency_timer_s + self.slack_s
+            quiet_s = broadcast_quiet_s(self.baud_bps, self.return_delay_s, listen_s)
+            last_s = (written_s + broadcast_ping_s(self.baud_bps) + listen_s)
+            deadline = min(last_s, written_s + self.byte_time_s(len(request.packet)) + quiet_s)
+            pos = 0
+            frames: List[Frame] = []
+            while True:
+                piece = self._read(1, deadline, to_deadline=True)
+                if not piece:
+                    break
+                buffer += piece
+                try:
+                    waiting = self.port.in_waiting
+                    if waiting:
+                        buffer += self.port.read(waiting, 0.0)
+                except OSError as exc:
+                    raise port_lost(exc) from None
+                deadline = min(last_s, time.monotonic() + quiet_s)
+                found, pos = framer.scan(buffer, pos, max_length, False)
+                frames += found
+                if any(frame.servo_id == MAX_ID and frame.crc_ok and frame.is_status
+                       and len(frame.status()[1]) == PING_REPLY_PARAMS for frame in found):
+                    break   # the last id answers last: nobody comes after it
+            frames += framer.scan(buffer, pos, max_length, True)[0]
+            heard = Sweep(noise=_outside(buffer, frames))
+            echoed = False
+            for frame in frames:
+                kind = request.classify(frame)
+                if kind == ANSWER:
+                    _, data = frame.status()
+                    if len(data) == PING_REPLY_PARAMS:
+                        heard.models[frame.servo_id] = data[0] | (data[1] << 8)
+                    else:   # an error status without its parameters: not a ping's answer
+                        heard.noise += 1
+                elif kind == ECHO:
+                    echoed = True
+                elif kind == CORRUPT:
+                    heard.garbled.append(frame.servo_id)
+                else:
+                    heard.noise += 1
+            heard.echoed = int(echoed)
+            heard.answered = sorted(heard.models)
+            heard.suspects = _suspects(len(buffer), frames, heard.models, request.packet)
+            heard.garbled = sorted(set(heard.garbled))
+            if heard.garbled or heard.noise:
+                self.mark_dirty()
+            self._note_echo(echoed, bool(heard.models))
+        return heard
 
     @_to_servo
     def read(self, servo_id: int, address: int, length: int, confirm: bool = True) -> bytes:

@@ -3,14 +3,17 @@
 import itertools
 import os
 import pathlib
+import subprocess
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from ament_index_python.packages import get_package_prefix
 from dxl_servo_driver import config, scan
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.models import ALL_MODELS, model_for, modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.serial_port import open_port
+import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
 import yaml
@@ -151,11 +154,8 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
                    XM430_LINE.format(id=3, baud=57600, mode='velocity', errors='none'),
                    XM430_LINE.format(id=2, baud=1000000, mode='position', errors='none')]
     progress = [line for line in err if line.startswith('scanning')]
-    # A ping sweep where it is faster than a broadcast ping: at 1 Mbps, where id 2 was found.
-    assert progress == [
-        f'scanning {b} bps (ping sweep of every id) ...' if scan.sweep_faster(b)
-        else f'scanning {b} bps (broadcast ping) ...' for b in scan.default_bauds()]
-    assert scan.sweep_faster(1_000_000) and not scan.sweep_faster(57600)
+    # One broadcast ping a baud, its window ended once the line is quiet (1 Mbps: id 2).
+    assert progress == [f'scanning {b} bps (broadcast ping) ...' for b in scan.default_bauds()]
     assert any('different baud rates' in line and '1 servo at 1000000 bps' in line
                for line in err)
     text = output.read_text()
@@ -401,7 +401,7 @@ def test_stop_at_first_ends_at_the_first_baud_with_servos(start: Starter,
     assert [line for line in err if line.startswith('scanning')] == [
         'scanning 57600 bps (broadcast ping) ...',
         'scanning 57600 bps, Protocol 1.0 (ping of 253 id(s)) ...',
-        'scanning 1000000 bps (ping sweep of every id) ...',
+        'scanning 1000000 bps (broadcast ping) ...',
         'scanning 1000000 bps, Protocol 1.0 (ping of 253 id(s)) ...']
     assert any('found 2 servos (tried 57600, 1000000 bps)' in line for line in err)
 
@@ -416,3 +416,160 @@ def test_a_ping_sweep_names_every_servo_that_answers(virtual_bus: StartVirtualBu
     sweep = with_bus(vb.device, 1000000,
                      lambda bus: bus.ping_sweep(range(253), FRAMERS[protocol]))
     assert sweep.answered == ids and sweep.garbled == [] and sweep.noise == 0, sweep
+
+
+# ---- the fast scan, its progress, Ctrl-C, `dxl scan`, find_one_servo ----------------------------
+def installed(name: str) -> str:
+    """Return an installed executable of the package (`scan`, `dxl`)."""
+    return os.path.join(get_package_prefix('dxl_servo_driver'), 'lib', 'dxl_servo_driver', name)
+
+
+# A spawned command on a loaded machine: only a failure waits this long.
+SPAWN_TIMEOUT_S = 120.0
+
+
+@pytest.mark.parametrize('return_delay_time, latency_ms', [(0, '1'), (250, '16'), (254, '1')])
+def test_the_fast_scan_finds_ids_0_and_252_in_both_protocols_at_any_return_delay(
+        virtual_bus: StartVirtualBus, capsys: pytest.CaptureFixture, tmp_path: pathlib.Path,
+        return_delay_time: int, latency_ms: str) -> None:
+    # Ids 0 and 252 in Protocol 2.0 (XM430) and in 1.0 (AX-12A) on one line: the two
+    # protocols' servos never answer each other's pings. Wire timing: the Return Delay Time
+    # (up to 508 us) and the adapter's latency are waited as on a real bus.
+    vb = virtual_bus([0, 252, 0, 252], 1000000, tmp_path / 'ttyDXL', extra_args=[
+        '--models', '1030', '1030', '12', '12', '--timing', 'wire', '--latency-ms', latency_ms,
+        '--return-delay-time', str(return_delay_time)])
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--baud', '57600', '1000000',
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK, err
+    ax = ('id {id}: model 12 (AX-12A), firmware 0, 1000000 bps, Protocol 1.0, mode position, '
+          'hardware errors: not in its table (each reply says them)')
+    assert out == [XM430_LINE.format(id=0, baud=1000000, mode='position', errors='none'),
+                   XM430_LINE.format(id=252, baud=1000000, mode='position', errors='none'),
+                   ax.format(id=0), ax.format(id=252)]
+    assert not any('warning' in line for line in err), err
+
+
+def test_servos_sharing_an_id_are_reported_not_missed(virtual_bus: StartVirtualBus,
+                                                      capsys: pytest.CaptureFixture,
+                                                      tmp_path: pathlib.Path) -> None:
+    # Two new servos (id 1 at 57600, Return Delay Time 500 us) collide; id 5 answers cleanly.
+    # The same in Protocol 1.0: two AX-12A with id 9.
+    vb = virtual_bus([1, 1, 5, 9, 9], 57600, tmp_path / 'ttyDXL', extra_args=[
+        '--models', '1030', '1030', '1030', '12', '12', '--timing', 'wire',
+        '--return-delay-time', '250'])
+    status, out, err = run_scan(capsys, '--port', str(vb.link), '--baud', '57600',
+                                '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK, err
+    assert out == [XM430_LINE.format(id=5, baud=57600, mode='position', errors='none')]
+    warnings = [line for line in err if line.startswith('scan: warning:')]
+    assert warnings == [
+        'scan: warning: id 1 at 57600 bps: garbled replies (two servos with the same id, or a '
+        'noisy line?)',
+        'scan: warning: id 9 at 57600 bps (Protocol 1.0): garbled replies (two servos with the '
+        'same id, or a noisy line?)'], err
+
+
+def test_a_terminal_shows_one_redrawn_progress_line_and_the_estimate_first(
+        start: Starter) -> None:
+    vb = start([1, 2], 57600)
+    child = pexpect.spawn(installed('scan'), ['--port', str(vb.link), '--baud', '57600',
+                                              '1000000', '--protocol', '2.0'],
+                          encoding='utf-8', timeout=SPAWN_TIMEOUT_S)
+    try:
+        child.expect(r'scan: 2 baud rates, Protocol 2\.0: about [\d.]+ s where nobody answers')
+        # The bar: baud k of n, the protocol, elapsed, the time left, the servos found so far.
+        child.expect(r'\r\x1b\[K\[[#.]{10}\] baud 1 of 2: 57600 bps, P2\.0 \| \d+ s, \d+ s left '
+                     r'\| 0 found')
+        child.expect(r'id 2: model 1030')
+        child.expect(r'\[[#.]{10}\] baud 2 of 2: 1000000 bps, P2\.0 \| \d+ s, \d+ s left '
+                     r'\| 2 found')
+        child.expect('scan: found 2 servos')
+        child.expect(pexpect.EOF)
+        # No 'scanning ...' lines on a terminal: the bar says it.
+        assert 'scanning' not in child.before
+    finally:
+        child.close(force=True)
+    assert child.exitstatus == scan.EXIT_OK
+
+
+def test_ctrl_c_keeps_what_was_found_writes_the_file_and_exits_130(
+        start: Starter, tmp_path: pathlib.Path) -> None:
+    vb = start([1, 2], 57600)
+    output = tmp_path / 'partial.yaml'
+    child = pexpect.spawn(installed('scan'), ['--port', str(vb.link), '--output', str(output)],
+                          encoding='utf-8', timeout=SPAWN_TIMEOUT_S)
+    try:
+        # Found at the first baud; then interrupted while the other 16 are still to come.
+        child.expect(r'id 2: model 1030')
+        child.expect(r'baud 1 of 17: 57600 bps, P1\.0')
+        child.sendintr()
+        child.expect(r'scan: interrupted: found 2 servos \(tried 57600')
+        child.expect(f'scan: wrote {output} \\(2 joints at 57600 bps\\)')
+        child.expect(pexpect.EOF)
+    finally:
+        child.close(force=True)
+    assert child.exitstatus == scan.EXIT_INTERRUPTED
+    parsed = config.validate(flatten(yaml.safe_load(output.read_text())))
+    assert [(j.name, j.servo_id) for j in parsed.joints] == [('joint_1', 1), ('joint_2', 2)]
+
+
+def test_dxl_scan_is_the_same_command(start: Starter, tmp_path: pathlib.Path) -> None:
+    shown = subprocess.run([installed('dxl'), 'scan', '--help'], capture_output=True, text=True,
+                           timeout=SPAWN_TIMEOUT_S)
+    assert shown.returncode == 0, shown.stderr
+    for option in ('--port', '--baud', '--ids', '--protocol', '--stop-at-first', '--output',
+                   '--protocol-timeout-ms'):
+        assert option in shown.stdout
+    vb = start([3, 4], 57600)
+    output = tmp_path / 'dxl.yaml'
+    trace = tmp_path / 'scan.trace'
+    done = subprocess.run([installed('dxl'), 'scan', '--port', str(vb.link), '--baud', '57600',
+                           '--protocol', '2.0', '--protocol-timeout-ms', SLOW_MACHINE_TIMEOUT_MS,
+                           '--output', str(output), '--trace', str(trace)],
+                          capture_output=True, text=True, timeout=SPAWN_TIMEOUT_S)
+    assert done.returncode == scan.EXIT_OK, done.stderr
+    assert done.stdout.splitlines() == [
+        XM430_LINE.format(id=i, baud=57600, mode='position', errors='none') for i in (3, 4)]
+    assert 'dxl scan: found 2 servos (tried 57600 bps)' in done.stderr
+    assert 'Written by `dxl scan --port' in output.read_text()
+    # Like every dxl command, --trace: the broadcast ping went out, as the trace says.
+    assert ' tx ff ff fd 00 fe 03 00 01 31 42\n' in trace.read_text()
+    bad = subprocess.run([installed('dxl'), 'scan', '--port', str(vb.link), '--baud', '1234'],
+                         capture_output=True, text=True, timeout=SPAWN_TIMEOUT_S)
+    assert bad.returncode == scan.EXIT_USAGE
+    assert bad.stderr.startswith('dxl scan: error: --baud 1234: no supported model'), bad.stderr
+
+
+def find_one(device: str, bauds: Optional[List[int]] = None) -> scan.OneServo:
+    """Run find_one_servo on a port opened as scan opens it."""
+    port = open_port(device, 57600)
+    try:
+        bus = Bus(port, 57600, latency_timer_s=0.2, return_delay_s=scan.MAX_RETURN_DELAY_S)
+        return scan.find_one_servo(bus, bauds, bauds_1=scan.protocol_1_bauds())
+    finally:
+        port.close()
+
+
+def test_find_one_servo_says_what_answered_at_the_first_baud(virtual_bus: StartVirtualBus,
+                                                             tmp_path: pathlib.Path) -> None:
+    one = virtual_bus([7], 1000000, tmp_path / 'ttyAX',
+                      extra_args=['--models', '12', '--timing', 'wire'])
+    assert find_one(one.device) == scan.OneServo(7, 12, 1.0, 1000000)
+    xm = virtual_bus([1], 57600, tmp_path / 'ttyXM', extra_args=['--timing', 'wire'])
+    assert find_one(xm.device) == scan.OneServo(1, 1030, 2.0, 57600)
+
+
+def test_find_one_servo_refuses_two_servos_and_collisions(virtual_bus: StartVirtualBus,
+                                                          tmp_path: pathlib.Path) -> None:
+    two = virtual_bus([1, 2], 57600, tmp_path / 'ttyTwo', extra_args=['--timing', 'wire'])
+    with pytest.raises(scan.NotOneServo, match=r'2 servos answered at 57600 bps \(id 1, id 2\)'):
+        find_one(two.device)
+    # The factory state: every new servo is id 1 at 57,600 bps, Return Delay Time 500 us.
+    same = virtual_bus([1, 1], 57600, tmp_path / 'ttySame', extra_args=[
+        '--timing', 'wire', '--return-delay-time', '250'])
+    with pytest.raises(scan.NotOneServo, match='replies collided at 57600 bps') as caught:
+        find_one(same.device)
+    assert caught.value.collided and caught.value.baud_bps == 57600
+    nobody = virtual_bus([1], 57600, tmp_path / 'ttyNone', extra_args=['--unplugged'])
+    with pytest.raises(scan.NoServo, match='no servo answered at 57600, 1000000 bps'):
+        find_one(nobody.device, [57600, 1000000])

@@ -1,4 +1,6 @@
-"""What every `dxl` command shares: exit statuses and the one error a command raises."""
+"""What every `dxl` command shares: exit statuses, the one error a command raises, its parser."""
+
+import argparse
 
 EXIT_OK = 0
 EXIT_FAILED = 1       # the command ran and its answer is no (no servo, a check failed, a diff)
@@ -14,3 +16,13 @@ class ToolError(Exception):
     def __init__(self, message: str, status: int = EXIT_FAILED) -> None:
         super().__init__(message)
         self.status = status
+
+
+def add_command(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]', name: str,
+                help_text: str, description: str, *examples: str) -> argparse.ArgumentParser:
+    """Add one command's parser: its line in `dxl --help`, its description, its examples."""
+    label = 'example' if len(examples) == 1 else 'examples'
+    return sub.add_parser(
+        name, help=help_text, description=description,
+        epilog=f'{label}:\n' + '\n'.join(f'  {example}' for example in examples),
+        formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -9,6 +9,16 @@ from dxl_servo_driver.tool.common import EXIT_INTERRUPTED, EXIT_USAGE, ToolError
 
 # The command modules, in the order `dxl --help` lists them.
 COMMANDS = (
+    'adapters',
+    'setup_servos',
+    'servo',
+    'backup',
+    'look',
+    'step',
+    'selftest',
+    'trace',
+    'calibrate',
+    'scan',
 )
 
 

@@ -9,24 +9,29 @@ the table states it, e.g. '0.229 rpm' read as rad/s, 'pulse' as rad, '2.69 mA' a
 """
 
 import argparse
+import contextlib
 from dataclasses import dataclass
 import math
-from typing import Optional, Tuple
+import signal
+import threading
+from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, TypeVar
 
 from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, PortError
 from dxl_servo_driver.models.base import Item, Model, ModelError
 from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
-from dxl_servo_driver.tool.common import EXIT_PORT, EXIT_USAGE, ToolError
+from dxl_servo_driver.tool.common import EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE, ToolError
+from dxl_servo_driver.wire import BusTrace
 
+T = TypeVar('T')
 FACTORY_BAUD = 57600
 # A tool waits generously for each reply beyond its wire time: the adapter's latency timer is
 # 16 ms by default on Linux, and a factory-new servo adds 500 us of Return Delay Time.
 DEFAULT_LATENCY_MS = 16.0
 FACTORY_RETURN_DELAY_S = 0.0005
 # Position items counted from the table's zero (an offset such as homing_offset is not).
-_ABSOLUTE = ('position', 'position_limit')
+_ABSOLUTE = ('position', 'position_limit', 'position_trajectory')
 # One of an X table's firmware_version address: where any 2.0 servo says it before its model is
 # known (the Protocol 1.0 tables' is read from the table of the model number the ping gave).
 _MANUAL_TABLE = models.model_for(1030)
@@ -43,11 +48,14 @@ def add_bus_arguments(parser: argparse.ArgumentParser, baud: Optional[int] = FAC
     if protocol:
         parser.add_argument('--protocol', type=float, choices=tuple(FRAMERS), default=2.0,
                             help='protocol the servos speak (default 2.0)')
+    parser.add_argument('--trace', default='', metavar='FILE',
+                        help='write every frame sent and received to FILE (`dxl trace FILE` '
+                        'decodes it)')
 
 
 def open_bus(port: str, baud_bps: int, protocol: float = 2.0,
-             return_delay_s: float = FACTORY_RETURN_DELAY_S) -> Bus:
-    """Open a port as a bus; ToolError (exit 3) saying why when it cannot."""
+             return_delay_s: float = FACTORY_RETURN_DELAY_S, trace: str = '') -> Bus:
+    """Open a port as a bus (traced to the file trace names, if any); ToolError if it cannot."""
     latency_ms = adapter_latency_timer_ms(port)
     if latency_ms is None:
         latency_ms = DEFAULT_LATENCY_MS
@@ -55,13 +63,24 @@ def open_bus(port: str, baud_bps: int, protocol: float = 2.0,
         raw = open_port(port, baud_bps)
     except PortError as exc:
         raise ToolError(str(exc), EXIT_PORT) from exc
-    return Bus(raw, baud_bps, latency_timer_s=(latency_ms + 2.0) / 1000.0,
-               return_delay_s=return_delay_s, framer=FRAMERS[protocol])
+    bus_trace: Optional[BusTrace] = None
+    if trace:
+        try:
+            bus_trace = BusTrace(trace, baud_bps, f'port {port}, Protocol {protocol}')
+        except OSError as exc:
+            raw.close()
+            raise ToolError(f'cannot write the trace {trace}: {exc.strerror or exc}',
+                            EXIT_OUTPUT) from exc
+    bus = Bus(raw, baud_bps, latency_timer_s=(latency_ms + 2.0) / 1000.0,
+              return_delay_s=return_delay_s, framer=FRAMERS[protocol])
+    bus.trace_to(bus_trace)
+    return bus
 
 
 def bus_from_args(args: argparse.Namespace) -> Bus:
-    """Open the bus the command's --port, --baud and --protocol name."""
-    return open_bus(args.port, args.baud, getattr(args, 'protocol', 2.0))
+    """Open the bus the command's --port, --baud, --protocol and --trace name."""
+    return open_bus(args.port, args.baud, getattr(args, 'protocol', 2.0),
+                    trace=getattr(args, 'trace', ''))
 
 
 @dataclass
@@ -156,3 +175,119 @@ def from_si(model: Model, item: Item, value: float) -> int:
     if unit == 'rad' and item.name.endswith(_ABSOLUTE):
         return int(round(value / factor)) + model.position_zero_raw
     return int(round(value / factor))
+
+
+class Saved:
+    """
+    Items of one servo read now and written back by restore(): what a command changes for a while.
+
+    restore() writes back only what differs, EEPROM items with torque off (the servo refuses
+    them otherwise), torque_enable last; every item it could not restore is named in one
+    ToolError. Items the model lacks are skipped.
+    """
+
+    def __init__(self, link: ServoLink, names: Sequence[str]) -> None:
+        self.link = link
+        self.values: Dict[str, int] = {}
+        try:
+            for name in names:
+                if link.model.has(name):
+                    self.values[name] = retried(lambda: link.read(name))
+        except CommError as exc:
+            raise ToolError(f'id {link.servo_id} stopped answering: {exc}') from exc
+
+    def restore(self) -> None:
+        """Write back every saved item that changed; ToolError naming those that failed."""
+        link = self.link
+        failed: List[str] = []
+        try:
+            now = {name: retried(lambda: link.read(name)) for name in self.values}
+        except CommError as exc:
+            raise ToolError(f'id {link.servo_id} stopped answering, state not restored '
+                            f'({", ".join(self.values)}): {exc}') from exc
+        changed = [name for name in self.values
+                   if name != 'torque_enable' and now[name] != self.values[name]]
+        # Torque goes off first when it was off (a goal written back must not move the
+        # servo) or when an EEPROM item is to be written.
+        if now.get('torque_enable') and (self.values.get('torque_enable') == 0 or any(
+                link.item(name).area == 'eeprom' for name in changed)):
+            try:
+                retried(lambda: link.write('torque_enable', 0))
+                now['torque_enable'] = 0
+            except CommError as exc:
+                failed.append(f'torque_enable ({exc})')
+        for name in changed:
+            try:
+                retried(lambda: link.write(name, self.values[name]))
+            except CommError as exc:
+                failed.append(f'{name} ({exc})')
+        torque = self.values.get('torque_enable')
+        if torque is not None and now.get('torque_enable') != torque:
+            try:
+                retried(lambda: link.write('torque_enable', torque))
+            except CommError as exc:
+                failed.append(f'torque_enable ({exc})')
+        if failed:
+            raise ToolError(f'id {link.servo_id}: could not restore {"; ".join(failed)}')
+
+
+ATTEMPTS = 3   # a tool's transaction is tried this often before its failure counts
+
+
+def retried(call: Callable[[], T], attempts: int = ATTEMPTS) -> T:
+    """Return call(), tried again on a CommError (a reply lost or corrupted) up to attempts."""
+    for attempt in range(attempts):
+        try:
+            return call()
+        except CommError:
+            if attempt == attempts - 1:
+                raise
+    raise AssertionError('unreachable')
+
+
+def read_retried(link: ServoLink, name: str) -> int:
+    """Return an item's raw value (tried again if a reply is lost)."""
+    return retried(lambda: link.read(name))
+
+
+def read_present(link: ServoLink) -> int:
+    """Return Present Position read once (it may be changing: no confirming second read)."""
+    item = link.item('present_position')
+    data = retried(lambda: link.bus.read_fresh(link.servo_id, item.address, item.size))[0]
+    return item.decode(data)
+
+
+def write_retried(link: ServoLink, name: str, value: int) -> None:
+    """Write an item's raw value (tried again if a reply is lost: a write is idempotent)."""
+    retried(lambda: link.write(name, value))
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """
+    Hold Ctrl-C off for a block (a restore that must finish); raise it after, if it came.
+
+    Only in the main thread (where Python runs signal handlers); elsewhere the block runs as is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: List[int] = []
+    before = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+    if came:
+        raise KeyboardInterrupt
+
+
+def connect_retried(bus: Bus, servo_id: int, attempts: int = ATTEMPTS) -> ServoLink:
+    """Return connect(bus, servo_id), tried again when a reply was lost (not when unknown)."""
+    for attempt in range(attempts):
+        try:
+            return connect(bus, servo_id)
+        except ToolError as exc:
+            if attempt == attempts - 1 or not isinstance(exc.__cause__, CommError):
+                raise
+    raise AssertionError('unreachable')
