@@ -4,6 +4,9 @@ SHELL := /bin/bash
 ENV := . tools/env.sh &&
 PARAMS ?= config/sim.yaml
 PYTEST_ARGS ?=
+# make test's workers: most process tests wait on the simulator's wire, so two share two cores
+# (test/conftest.py gives each worker DDS domains of its own). TEST_WORKERS=0: one process.
+TEST_WORKERS ?= 2
 
 .PHONY: setup run test test-fast fuzz bench bench-scale clean
 
@@ -14,7 +17,7 @@ run: setup
 	@$(ENV) exec install/dxl_servo_driver/lib/dxl_servo_driver/node --ros-args --params-file $(PARAMS)
 
 test: setup
-	@$(ENV) python -m pytest $(PYTEST_ARGS)
+	@$(ENV) python -m pytest -n $(TEST_WORKERS) $(PYTEST_ARGS)
 
 # The unit tier: the layers below the node, in this process (test/conftest.py marks the tiers).
 test-fast: setup

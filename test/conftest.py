@@ -13,13 +13,12 @@ multiples of the profile's max_examples and set nothing else.
 
 import os
 import pathlib
-import random
 import tempfile
 from typing import Any, Iterator, List, TYPE_CHECKING
 
 from hypothesis import HealthCheck, settings
 from hypothesis.database import DirectoryBasedExampleDatabase
-from processes import fresh_domain_id, StartVirtualBus, VirtualBusProcess
+from processes import fresh_domain_id, StartVirtualBus, VirtualBusProcess, worker_domain
 import pytest
 
 if TYPE_CHECKING:
@@ -27,7 +26,8 @@ if TYPE_CHECKING:
 
 if 'DXL_TEST_KEEP_DOMAIN' not in os.environ:
     # Domain ids 1..101 keep the derived UDP ports inside the valid range on every RMW.
-    os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
+    # One worker's domains are none of another's (make test runs two: processes.py).
+    os.environ['ROS_DOMAIN_ID'] = str(worker_domain(1, 101))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
 

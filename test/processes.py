@@ -221,7 +221,20 @@ def fresh_domain_id() -> int:
     the many in-process nodes of earlier tests can leave the session's domain crowded, and a
     late participant would then never be discovered.
     """
-    return random.SystemRandom().randint(102, 200)
+    return worker_domain(102, 200)
+
+
+def worker_domain(low: int, high: int) -> int:
+    """
+    Return a random DDS domain in low..high that no other pytest-xdist worker of this run uses.
+
+    make test runs two workers at once: each takes the domains of its own residue (gw0 the
+    even ones, gw1 the odd ones), so that two tests running side by side never share one.
+    """
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1') or 1)
+    worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:] or 0)
+    return random.SystemRandom().choice(
+        [domain for domain in range(low, high + 1) if domain % workers == worker % workers])
 
 
 class NodeProcess:
