@@ -23,6 +23,7 @@ import json
 import os
 import pathlib
 import random
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -242,7 +243,25 @@ def measure_rate(pair: Pair, hz: float, rng: random.Random) -> Dict[str, Any]:
                             'follower': round(100.0 * cpu[1] / wall, 1)}}
 
 
-def teleop_case(workdir: pathlib.Path) -> Dict[str, Any]:
+def teleop_case(workdir: pathlib.Path, attempts: int = 2) -> Dict[str, Any]:
+    """Run the case at every loop rate; a pair that never starts following is tried again."""
+    for attempt in range(1, attempts + 1):
+        try:
+            return _teleop_case(workdir)
+        except RuntimeError as exc:
+            # The nodes' logs are kept where the results go: a start that failed is read there.
+            kept = ROOT / 'bench-results'
+            kept.mkdir(exist_ok=True)
+            for log in workdir.glob('teleop_*.log'):
+                shutil.copy(log, kept / f'attempt{attempt}_{log.name}')
+            if attempt == attempts:
+                raise RuntimeError(f'{exc} (logs in {kept})') from exc
+            print(f'bench: teleop attempt {attempt} of {attempts} failed: {exc}',
+                  file=sys.stderr, flush=True)
+    raise AssertionError('unreachable')
+
+
+def _teleop_case(workdir: pathlib.Path) -> Dict[str, Any]:
     """Run the case at every loop rate (one pair of buses and nodes for all)."""
     pair = Pair(workdir)
     rng = random.Random(7)
