@@ -93,7 +93,7 @@ class Pair:
         rclpy.init(context=self.context)
         self.client = rclpy.create_node('bench_teleop_client', context=self.context)
         self._lock = threading.Lock()
-        self.leader_msgs: List[Tuple[float, int, Tuple[float, ...]]] = []
+        self.leader_msgs: List[Tuple[float, int, Tuple[Optional[float], ...]]] = []
         self.client.create_subscription(JointState, f'{LEADER_NS}/joint_states',
                                         self._on_leader, 100)
         self.set_params = [self.client.create_client(SetParameters, f'{ns}/{NODE}/set_parameters')
@@ -115,7 +115,11 @@ class Pair:
         received = time.monotonic()
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         with self._lock:
-            self.leader_msgs.append((received, stamp, tuple(msg.position)))
+            # By joint index j1..jN: a joint whose read failed in a cycle is left out of that
+            # cycle's joint_states (None here), so positions are placed by name.
+            by_name = dict(zip(msg.name, msg.position))
+            self.leader_msgs.append((received, stamp, tuple(
+                by_name.get(f'j{i}') for i in range(1, N + 1))))
             del self.leader_msgs[:-2000]
 
     def set_rate(self, hz: float) -> None:
@@ -137,7 +141,8 @@ class Pair:
         want = MANUAL_UNITS.position_to_rad(raw)
         with self._lock:
             for received, stamp, positions in self.leader_msgs:
-                if received > after_s and abs(positions[index] - want) < 2.5e-3:
+                position = positions[index]
+                if received > after_s and position is not None and abs(position - want) < 2.5e-3:
                     return received, stamp
         return None
 
