@@ -106,9 +106,12 @@ def read_items(link: ServoLink, items: Sequence[Item]) -> Dict[str, int]:
             return
         start = group[0].address
         end = max(item.address + item.size for item in group)
+        # A second read must agree only where nothing changes by itself: a block holding
+        # Present Position or the Realtime Tick differs between two reads on a loaded host.
+        steady = not any(item.area == 'ram' and item.access == 'R' for item in group)
         for attempt in range(READ_ATTEMPTS):
             try:
-                data = link.bus.read(link.servo_id, start, end - start)
+                data = link.bus.read(link.servo_id, start, end - start, confirm=steady)
                 break
             except StatusError as exc:
                 if len(group) > 1:

@@ -102,7 +102,10 @@ class ServoLink:
     def read(self, name: str) -> int:
         """Return an item's raw value."""
         item = self.item(name)
-        return item.decode(self.bus.read(self.servo_id, item.address, item.size))
+        # Confirmed by a second read only where the value does not change by itself.
+        steady = not (item.area == 'ram' and item.access == 'R')
+        return item.decode(self.bus.read(self.servo_id, item.address, item.size,
+                                         confirm=steady))
 
     def write(self, name: str, value: int) -> None:
         """Write an item's raw value (no checks: the caller checked its range)."""
