@@ -11,7 +11,8 @@ after itself when the node cannot start. Client alone drives a driver in another
 import itertools
 import threading
 import time
-from typing import Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, TypeVar
+from typing import (
+    Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, Tuple, TypeVar)
 
 from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
@@ -354,3 +355,22 @@ def faulty_harness(params: Mapping[str, Any], faults: Faults, seed: int = 1,
             return wrap(port) if wrap is not None else port
         return SimTransport(sim, open_port)
     return NodeHarness(params, port_factory=factory)
+
+
+def at_once(h: NodeHarness, ids: Sequence[int],
+            register: str = 'present_position') -> Tuple[float, List[int]]:
+    """
+    Return one register of several simulated servos at one moment, and that moment.
+
+    Read one after the other, moving servos are read at different moments: a thread descheduled
+    between two reads would see them apart by what they moved meanwhile.
+    """
+    sim = h.sim
+    with sim.lock:   # no packet moves a servo meanwhile
+        now_s = time.monotonic()   # the simulator's clock
+        values = []
+        for servo_id in ids:
+            servo = sim.servo(servo_id)
+            servo.advance(now_s)
+            values.append(servo.memory.get(register))
+    return now_s, values

@@ -47,7 +47,7 @@ fi
 
 # control_msgs (the MoveIt actions' types): a ROS 2 install has it (package.xml; rosdep installs
 # ros-jazzy-control-msgs), PyPI has no wheel of it. Here the stand-in in compat/control_msgs, with
-# the real package's type hashes (test/test_control_msgs.py), is built into .venv only, and only
+# the real package's type hashes (test/ros/test_control_msgs.py), is built into .venv only, and only
 # when no control_msgs is importable without it.
 compat=.venv/ros_compat
 if [ "$mode" = ros ]; then

@@ -29,9 +29,9 @@ Adding a model or a family (the contract the rest of the package counts on):
   block is read from the table's own registers), Fast Sync Read (`fast_sync_read_firmware`).
 - `Model.bauds` maps the Baud Rate register's values to bit/s; `physics` is the datasheet's
   points (base.datasheet) the simulator drives its motor with.
-- test/test_models.py and test/test_model_families.py hold every model to this (items sorted
-  and disjoint, limits naming existing registers, modes, units and bauds agreeing, indirect
-  entries matching, physics usable, the SDK's model files agreeing): run them first.
+- test/models/test_models.py and test/models/test_model_families.py hold every model to this
+  (items sorted and disjoint, limits naming existing registers, modes, units and bauds agreeing,
+  indirect entries matching, physics usable, the SDK's model files agreeing): run them first.
 """
 
 from dxl_servo_driver.models.base import Item, Model, ModelError, Physics, VoltagePoint

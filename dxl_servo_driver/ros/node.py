@@ -212,7 +212,7 @@ class DriverNode(LifecycleNode):
         (`ros2 lifecycle set` of activate twice), which ends the spin. So the service's callback
         (`_service_change_state.callback`) is wrapped, and the state read from
         `_state_machine.current_state` (private members, like _rclpy.RCLError);
-        test/test_rclpy_internals.py fails the day an rclpy release changes any of them.
+        test/ros/test_rclpy_internals.py fails the day an rclpy release changes any of them.
         """
         service = self._service_change_state
         original = service.callback
