@@ -55,20 +55,14 @@ def reply_order(packet: Packet) -> dict[int, int] | None:
 
 def handle(servo: SimServo, event: ParseEvent, now_s: float) -> bytes | None:
     """Act on one Protocol 1.0 packet heard at now_s; return the status packet to send, if any."""
-    if not servo.responsive(now_s) or servo.protocol_version != 1:
-        return None
     packet = event.packet
-    my_id = servo.servo_id
-    target = packet.servo_id
-    broadcast = target == BROADCAST_ID
-    if target != my_id and not broadcast:
+    if not servo.hears(packet.servo_id, 1, now_s):
         return None
-    instruction = packet.instruction
-    if not event.crc_ok:
-        if broadcast:
-            return None
-        return _status(servo, ErrorBit.CHECKSUM, b'', _kind(instruction))
-    params = packet.params
+    broadcast = packet.servo_id == BROADCAST_ID
+    if not event.crc_ok:   # a broadcast is never answered, even to say it was corrupt
+        return None if broadcast else _status(
+            servo, ErrorBit.CHECKSUM, b'', _kind(packet.instruction))
+    my_id, instruction, params = servo.servo_id, packet.instruction, packet.params
     if instruction in _SYNC_BULK:
         if not broadcast:
             return _status(servo, ErrorBit.INSTRUCTION, b'', _KIND_OTHER)

@@ -63,8 +63,8 @@ class Servo(Protocol):
     def protocol_version(self) -> int:
         """Return the protocol it speaks now."""
 
-    def responsive(self, now_s: float) -> bool:
-        """Return whether the servo hears packets at now_s."""
+    def hears(self, target: int, version: int, now_s: float) -> bool:
+        """Return whether a packet of this protocol to target, heard at now_s, is its to act on."""
 
     def write(self, address: int, payload: bytes) -> int:
         """Apply a bus write all-or-nothing; return the status error code."""
@@ -87,21 +87,15 @@ Handler = Callable[[Servo, int, bool, bytes, float], 'bytes | None']
 
 def handle(servo: Servo, event: ParseEvent, now_s: float) -> bytes | None:
     """Act on one Protocol 2.0 packet heard at now_s; return the status packet to send, if any."""
-    if not servo.responsive(now_s) or servo.protocol_version != 2:
-        return None
     packet = event.packet
-    my_id = servo.servo_id
-    target = packet.servo_id
-    if target != my_id and target != BROADCAST_ID:
+    if not servo.hears(packet.servo_id, 2, now_s):
         return None
-    instruction = packet.instruction
-    if not event.crc_ok:
-        if target == BROADCAST_ID:
-            return None
-        return _status(servo, my_id, ErrorCode.CRC, b'', _kind(instruction))
+    my_id, instruction = servo.servo_id, packet.instruction
+    broadcast = packet.servo_id == BROADCAST_ID
+    if not event.crc_ok:   # a broadcast is never answered, even to say it was corrupt
+        return None if broadcast else _status(servo, my_id, ErrorCode.CRC, b'', _kind(instruction))
     if instruction == Instruction.STATUS:
         return None  # another servo's status: not for us
-    broadcast = target == BROADCAST_ID
     params = packet.params
     try:
         handler = HANDLERS[instruction]

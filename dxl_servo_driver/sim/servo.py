@@ -29,7 +29,8 @@ from typing import Protocol
 from dxl_servo_driver.models import Model, modes
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.xm430 import TICK_PERIOD_MS
-from dxl_servo_driver.protocol import ErrorCode, MAX_ID, ParseEvent, RETURN_DELAY_UNIT_S
+from dxl_servo_driver.protocol import (
+    BROADCAST_ID, ErrorCode, MAX_ID, ParseEvent, RETURN_DELAY_UNIT_S)
 from dxl_servo_driver.sim import protocol2
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
@@ -140,6 +141,11 @@ class SimServo:
     def responsive(self, now_s: float) -> bool:
         """Return whether the servo hears packets at now_s (powered and booted)."""
         return self.powered and now_s >= self._ready_s
+
+    def hears(self, target: int, version: int, now_s: float) -> bool:
+        """Return whether a packet of this protocol to target, heard at now_s, is this servo's."""
+        return (self.responsive(now_s) and self.protocol_version == version
+                and target in (self.servo_id, BROADCAST_ID))
 
     @property
     def physics_time_s(self) -> float:
