@@ -23,11 +23,10 @@ import math
 import time
 from typing import List, Optional, Tuple
 
-from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_FAILED, EXIT_OK, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect_retried, from_si, read_present, read_retried,
+    add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
     Saved, ServoLink, to_si, uninterrupted, write_retried)
 
 PASS, FAIL, SKIP = 'PASS', 'FAIL', 'SKIP'
@@ -185,8 +184,7 @@ def run(args: argparse.Namespace) -> int:
         raise ToolError('--current must be in (0, 100] A', EXIT_USAGE)
     if not 0.0 < args.tolerance < args.degrees:
         raise ToolError('--tolerance must be above 0 and below --degrees', EXIT_USAGE)
-    bus = bus_from_args(args)
-    try:
+    with bus_session(args) as bus:
         link = connect_retried(bus, args.id)
         print(f'id {args.id}: {link.model.name}, firmware {link.firmware}, {bus.baud_bps} bps')
         verdicts: List[Verdict] = []
@@ -204,10 +202,6 @@ def run(args: argparse.Namespace) -> int:
             if saved is not None:
                 with uninterrupted():
                     saved.restore()
-    except CommError as exc:
-        raise ToolError(str(exc)) from exc
-    finally:
-        bus.close()
     failed = [verdict.check for verdict in verdicts if verdict.result == FAIL]
     skipped = sum(1 for verdict in verdicts if verdict.result == SKIP)
     if failed:

@@ -83,6 +83,18 @@ def bus_from_args(args: argparse.Namespace) -> Bus:
                     trace=getattr(args, 'trace', ''))
 
 
+@contextlib.contextmanager
+def bus_session(args: argparse.Namespace) -> Iterator[Bus]:
+    """Yield bus_from_args(args), closed after; a bus failure in the block is one ToolError."""
+    bus = bus_from_args(args)
+    try:
+        yield bus
+    except CommError as exc:
+        raise ToolError(str(exc)) from exc
+    finally:
+        bus.close()
+
+
 @dataclass
 class ServoLink:
     """One servo on a bus, with its model's control table."""

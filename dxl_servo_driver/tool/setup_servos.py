@@ -27,7 +27,7 @@ import argparse
 from dataclasses import dataclass, field
 import sys
 import time
-from typing import Any, Dict, List, Optional, Sequence, Set, Tuple
+from typing import List, Optional, Sequence, Set, Tuple
 
 from dxl_servo_driver import config, models
 from dxl_servo_driver.bus import Bus, FRAMERS
@@ -41,7 +41,7 @@ from dxl_servo_driver.tool.common import (
     EXIT_INTERRUPTED, EXIT_OK, EXIT_PORT, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.servo import read_items, torque_off, write_verified
 from dxl_servo_driver.tool.session import connect, FACTORY_BAUD, open_bus, ServoLink
-import yaml  # type: ignore[import-untyped]
+from dxl_servo_driver.tool.yaml_edit import EditError, parameters_of
 
 DEFAULT_BAUD = 1_000_000
 DEFAULT_WAIT_S = 60.0
@@ -107,16 +107,13 @@ def targets_from_params(path: str) -> Tuple[List[Target], int]:
     try:
         config.check_parameter_file(path)
         with open(path, encoding='utf-8') as stream:
-            tree = yaml.safe_load(stream)
+            flat = parameters_of(stream.read())
     except ConfigurationError as exc:
         raise ToolError(str(exc), EXIT_USAGE) from exc
     except OSError as exc:
         raise ToolError(f'{path} cannot be read: {exc.strerror}', EXIT_USAGE) from exc
-    params = _ros_parameters(tree)
-    if params is None:
-        raise ToolError(f'{path}: no "ros__parameters:" mapping', EXIT_USAGE)
-    flat: Dict[str, Any] = {}
-    _flatten(params, '', flat)
+    except EditError as exc:
+        raise ToolError(f'{path}: {exc}', EXIT_USAGE) from exc
     try:
         cfg = config.validate(flat)
     except ConfigurationError as exc:
@@ -129,27 +126,6 @@ def targets_from_params(path: str) -> Tuple[List[Target], int]:
             targets.append(Target(f'the second servo of joint {joint.name}',
                                   joint.secondary_id, joint.model, joint.protocol))
     return targets, cfg.baud_rate
-
-
-def _ros_parameters(tree: Any) -> Optional[Dict[str, Any]]:
-    if not isinstance(tree, dict):
-        return None
-    for entry in tree.values():
-        if isinstance(entry, dict):
-            if isinstance(entry.get('ros__parameters'), dict):
-                return entry['ros__parameters']
-            found = _ros_parameters(entry)
-            if found is not None:
-                return found
-    return None
-
-
-def _flatten(tree: Dict[str, Any], prefix: str, out: Dict[str, Any]) -> None:
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            _flatten(value, f'{prefix}{key}.', out)
-        else:
-            out[f'{prefix}{key}'] = value
 
 
 def _servo_id(text: str) -> int:

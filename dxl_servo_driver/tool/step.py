@@ -23,11 +23,10 @@ import math
 import time
 from typing import Dict, IO, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.models.base import Item
 from dxl_servo_driver.tool.common import add_command, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect_retried, from_si, read_present, read_retried,
+    add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
     retried, Saved, ServoLink, to_si, uninterrupted, write_retried)
 
 GAIN_KEYS = {'p': 'position_p_gain', 'i': 'position_i_gain', 'd': 'position_d_gain'}
@@ -311,8 +310,7 @@ def run(args: argparse.Namespace) -> int:
     gain_sets = [parse_gains(text) for text in args.gains or ()]
     if args.duration <= 0.0 or args.duration > 60.0:
         raise ToolError('--duration must be in (0, 60] s', EXIT_USAGE)
-    bus = bus_from_args(args)
-    try:
+    with bus_session(args) as bus:
         link = connect_retried(bus, args.id)
         model = link.model
         if not model.has('goal_position') or args.mode not in model.modes:
@@ -324,10 +322,6 @@ def run(args: argparse.Namespace) -> int:
         finally:
             with uninterrupted():
                 saved.restore()
-    except CommError as exc:
-        raise ToolError(str(exc)) from exc
-    finally:
-        bus.close()
 
 
 def _steps(link: ServoLink, saved: Saved, goal_item: Item, gain_sets: List[Dict[str, int]],
