@@ -221,4 +221,6 @@ def _afterwards(servo: Servo, done: bool = False) -> str:
         return 'passive (torque: false), never torqued'
     if servo.joint.trigger:
         return 'a trigger, its spring re-armed' if done else 'its trigger springs back to its rest'
+    if not servo.torque_wanted:   # torque_on_start false, or turned off: it stays off
+        return 'torque off, as it was'
     return 'holding where it is' if done else 'it will hold where it is'

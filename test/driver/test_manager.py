@@ -277,6 +277,23 @@ def test_a_servo_that_restarts_on_its_own_gets_its_setup_back(
     assert manager.servos['arm'].fresh
 
 
+def test_a_servo_left_without_torque_comes_back_without_it_and_the_log_says_so(
+        rig: Rig) -> None:
+    manager = rig.manager(validate(params(torque_on_start=False)))
+    manager.configure()
+    manager.activate()
+    rig.sim.powercycle(1)
+    rig.wait_booted(1)
+    read_states(manager)
+    run_cycles(manager, no_tasks(manager))
+    assert manager.servos['arm'].restarts == 1
+    assert rig.reg(1, 'profile_velocity') == 200          # its setup is back
+    assert rig.reg(1, 'torque_enable') == 0               # its torque is not
+    said = [line for line in rig.logs if "joint 'arm'" in line and 'restart' in line]
+    assert said and all('torque off, as it was' in line for line in said), said
+    assert not any('hold' in line for line in said), said
+
+
 def test_command_timeout_zeroes_streamed_goals(rig: Rig) -> None:
     now = [100.0]
     manager = rig.manager(validate(params(command_timeout=0.5)), clock=lambda: now[0])

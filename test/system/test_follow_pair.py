@@ -1,8 +1,8 @@
 """
 A leader-follower pair as it runs: two `virtual_bus` processes, two installed `node` processes.
 
-The leader (namespace /leader: XL330-M077s, torque off) is moved by hand through its
-simulator's console (`turn ID RAD SECONDS`); the follower (namespace /follower: an XL430-W250
+The leader (namespace /leader: XL330-M077s, its arm passive, its gripper without torque) is moved
+by hand through its simulator's console (`turn ID RAD SECONDS`); the follower (namespace /follower: an XL430-W250
 and two XL330-M288, the gripper in current_based_position) follows its joint_states. Its
 simulator records every goal written on its wire (`--trace-goals`), so a far start is checked
 step by step there: no goal step above follow.max_step. A client here calls `~/follow`, the
@@ -51,8 +51,8 @@ def leader_yaml(port: str) -> str:
     ping_retries: 10                  # a loaded machine may answer a configure read late
     torque_on_start: false
     joints: [arm, elbow, grip]
-    arm: {{id: 1, model: XL330-M077}}
-    elbow: {{id: 2, model: XL330-M077}}
+    arm: {{id: 1, model: XL330-M077, torque: false}}
+    elbow: {{id: 2, model: XL330-M077, torque: false}}
     grip: {{id: 3, model: XL330-M077, operating_mode: current_based_position, gripper: true,
            gripper_open: 0.0, gripper_closed: {LEADER_CLOSED}}}
 """
@@ -282,6 +282,17 @@ def test_a_braked_joint_stops_the_follower_and_a_dead_leader_is_held(
         assert answer.startswith('ok'), answer
         assert pair.follow(True).success
         pair.wait_at('arm', 0.7, 0.03, 'engaged again')
+
+        # A brown-out of a leader servo: the leader restores it passive, without torque (the
+        # hand can still turn it: the console's turn refuses a torqued horn), and it is
+        # followed as before.
+        answer = pair.leader_bus.control('powercycle 2')
+        assert answer.startswith('ok'), answer
+        pair.wait_output(pair.leader, "joint 'elbow': restored after its restart; passive")
+        assert pair.leader_bus.control('get 2 torque_enable') == 'ok get 2 torque_enable=0'
+        pair.turn(2, 0.4, 0.3)
+        pair.wait_at('elbow', 0.4, 0.03, 'the elbow followed after its leader servo restarted')
+        assert pair.leader_bus.control('get 2 torque_enable') == 'ok get 2 torque_enable=0'
 
         # The leader dies: the follower holds within follow.timeout (its goals stop), and
         # says so.
