@@ -2,12 +2,12 @@
 A leader-follower pair as it runs: two `virtual_bus` processes, two installed `node` processes.
 
 The leader (namespace /leader: XL330-M077s, its arm passive, its gripper without torque) is moved
-by hand through its simulator's console (`turn ID RAD SECONDS`); the follower (namespace /follower: an XL430-W250
-and two XL330-M288, the gripper in current_based_position) follows its joint_states. Its
-simulator records every goal written on its wire (`--trace-goals`), so a far start is checked
+by hand through its simulator's console (`turn ID RAD SECONDS`); the follower (namespace /follower:
+an XL430-W250 and two XL330-M288, the gripper in current_based_position) follows its joint_states.
+Its simulator records every goal written on its wire (`--trace-goals`), so a far start is checked
 step by step there: no goal step above follow.max_step. A client here calls `~/follow`, the
-follower's services, and reads joint_states and /diagnostics. Every process is stopped and
-reaped, every file is in the test's workdir.
+follower's services, and reads joint_states and /diagnostics. Every process is stopped and reaped,
+every file is in the test's workdir.
 """
 
 import pathlib
