@@ -3,6 +3,7 @@
 import math
 
 from dxl_servo_driver.models import model_for, xm430
+from dxl_servo_driver.protocol import ErrorCode
 from dxl_servo_driver.sim import motor
 import pytest
 from sim_rig import Rig
@@ -127,7 +128,10 @@ def test_current_based_position_limits_current_while_holding_against_load() -> N
 def test_overheat_trips_under_stall_after_long_advance() -> None:
     rig = Rig(mode=16)
     rig.dyn.set_load(100.0)
-    rig.write(torque_enable=1, goal_pwm=885, temperature_limit=60)
+    # EEPROM, before torque on (which locks it). Shutdown on overheating only: with the
+    # default (overload too) the servo would cut its torque after a second of stall.
+    rig.write(temperature_limit=60, shutdown=0x04)
+    rig.write(torque_enable=1, goal_pwm=885)
     assert rig.run(0.1) & 0x04 == 0
     errors = rig.dyn.advance(3600.0, rig.mem)  # cheap: the stalled state is jumped analytically
     assert errors & 0x04
@@ -138,7 +142,8 @@ def test_overheat_trips_under_stall_after_long_advance() -> None:
     # Stall for one second does not heat it past the limit yet (minutes of thermal mass).
     cold = Rig(mode=16)
     cold.dyn.set_load(100.0)
-    cold.write(torque_enable=1, goal_pwm=885, temperature_limit=60)
+    cold.write(temperature_limit=60, shutdown=0x04)
+    cold.write(torque_enable=1, goal_pwm=885)
     assert cold.run(1.0) & 0x04 == 0
     assert cold.reg('present_temperature') < 27
 
@@ -181,14 +186,14 @@ def test_following_error_when_load_stops_a_profile() -> None:
 def test_input_voltage_condition(volts: float, expected: int) -> None:
     rig = Rig(mode=3)
     rig.dyn.set_input_voltage(volts)
-    assert rig.dyn.advance(0.01, rig.mem) & 0x01 == expected
+    assert rig.run(0.01) & 0x01 == expected
     assert rig.reg('present_input_voltage') == round(volts * 10)
 
 
 def test_voltage_limits_come_from_registers() -> None:
     rig = Rig(mode=3)
     rig.write(min_voltage_limit=125)
-    assert rig.dyn.advance(0.01, rig.mem) & 0x01
+    assert rig.run(0.01) & 0x01
 
 
 def test_torque_off_coasts_to_a_stop() -> None:
@@ -215,9 +220,9 @@ def test_reinit_within_one_turn_with_homing_offset() -> None:
     rig = Rig(mode=4, start_pulse=3 * 4096 + 100.3)
     assert rig.reg('present_position') == 100
     rig.write(homing_offset=500)
-    rig.dyn.reinit_present_position(rig.mem)
+    rig.servo.clear_multi_turn()
     assert rig.reg('present_position') == 600
-    rig.dyn.advance(0.001, rig.mem)
+    rig.step()
     assert rig.reg('present_position') == 600
     rig = Rig(mode=4, start_pulse=-4096 - 50.0)
     assert rig.reg('present_position') == 4046
@@ -229,11 +234,15 @@ def test_reinit_within_one_turn_with_homing_offset() -> None:
     assert rig.reg('position_trajectory') == 9046
 
 
-def test_position_mode_clamps_goal_to_position_limits() -> None:
+def test_position_mode_keeps_goals_within_position_limits() -> None:
     rig = Rig(mode=3)
     rig.write(max_position_limit=3000, min_position_limit=1000)
     rig.write(torque_enable=1, profile_velocity=200, profile_acceleration=100)
-    rig.write(goal_position=4000)
+    # A goal beyond the limits is refused (Data Limit Error): the servo keeps the goal it had.
+    held = rig.reg('goal_position')
+    assert rig.attempt('goal_position', 4000) == ErrorCode.DATA_LIMIT
+    assert rig.reg('goal_position') == held
+    rig.write(goal_position=3000)
     high = 0
     for _ in range(150):
         rig.run(0.01)
@@ -241,7 +250,9 @@ def test_position_mode_clamps_goal_to_position_limits() -> None:
     assert rig.reg('position_trajectory') == 3000
     assert abs(rig.reg('present_position') - 3000) <= 20
     assert high <= 3005
-    rig.write(goal_position=-500)
+    assert rig.attempt('goal_position', -500) == ErrorCode.DATA_LIMIT
+    assert rig.reg('goal_position') == 3000
+    rig.write(goal_position=1000)
     rig.run(1.5)
     assert rig.reg('position_trajectory') == 1000
     assert abs(rig.reg('present_position') - 1000) <= 20
@@ -249,7 +260,8 @@ def test_position_mode_clamps_goal_to_position_limits() -> None:
 
 def test_moving_follows_moving_threshold() -> None:
     rig = Rig(mode=1)
-    rig.write(torque_enable=1, moving_threshold=20, goal_velocity=15)
+    rig.write(moving_threshold=20)  # EEPROM: before torque on, which locks it
+    rig.write(torque_enable=1, goal_velocity=15)
     rig.run(0.5)
     assert rig.reg('present_velocity') == 15
     assert rig.reg('moving') == 0
