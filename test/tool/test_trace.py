@@ -8,8 +8,10 @@ import time
 from typing import List
 
 from ament_index_python.packages import get_package_prefix
+from dxl_servo_driver import protocol1
 from dxl_servo_driver.protocol import (
     decode_packet, encode_instruction, encode_status, Instruction)
+from dxl_servo_driver.protocol1 import Instruction1, PROTOCOL_1
 from dxl_servo_driver.tool.session import open_bus, retried
 from dxl_servo_driver.tool.trace import decode, read_trace
 from dxl_servo_driver.wire import TracedPort
@@ -30,6 +32,17 @@ def sent_instructions(path: pathlib.Path) -> List[str]:
         parts = line.split(None, 2)
         if len(parts) == 3 and parts[1] == 'tx':
             names.append(Instruction(decode_packet(bytes.fromhex(parts[2])).instruction).name)
+    return names
+
+
+def sent_instructions_1(path: pathlib.Path) -> List[str]:
+    """Return the instruction of every Protocol 1.0 packet the trace says went out."""
+    names = []
+    for line in path.read_text().split('\n')[:-1]:
+        parts = line.split(None, 2)
+        if len(parts) == 3 and parts[1] == 'tx':
+            names.append(Instruction1(protocol1.decode_packet(bytes.fromhex(parts[2]))
+                                      .instruction).name)
     return names
 
 
@@ -157,3 +170,195 @@ def test_an_untraced_bus_has_its_port_as_it_is(virtual_bus: StartVirtualBus,
              if not line.startswith('#')]
     # One ping (more if a reply was lost on a loaded machine) and its answer, after the speed.
     assert kinds[0] == 'baud' and kinds[1] == 'tx' and kinds[-1] == 'rx', kinds
+
+
+def test_a_protocol_1_tool_trace_decodes_to_what_was_sent(virtual_bus: StartVirtualBus,
+                                                          tmp_path: pathlib.Path) -> None:
+    # An MX-28 on its Protocol 1.0 firmware (model 29): no model number in a ping's answer.
+    bus_process = virtual_bus([1], 1000000, extra_args=['--models', 'MX-28'])
+    trace = tmp_path / 'selftest1.trace'
+    done = subprocess.run([dxl(), 'selftest', '1', '--port', bus_process.device, '--baud',
+                           '1000000', '--protocol', '1.0', '--trace', str(trace)],
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert trace.read_text().splitlines()[0].endswith(', Protocol 1.0')
+    decoded = subprocess.run([dxl(), 'trace', str(trace), '--strict'], capture_output=True,
+                             text=True, timeout=TIMEOUT_S)
+    assert decoded.returncode == 0, decoded.stdout + decoded.stderr
+    text = decoded.stdout
+    assert text.splitlines()[0] == "Protocol 1.0 (the trace's header says so)"
+    sent = sent_instructions_1(trace)
+    assert len(sent) > 50 and sent[0] == 'PING'
+    assert {'PING', 'READ', 'WRITE'} <= set(sent), set(sent)
+    assert decoded_instructions(text) == sent
+    assert re.search(r'<  id 1 PING reply \+\d+ us$', text, re.MULTILINE), text
+    # The model comes from the read of the model number, and names the items from then on.
+    assert re.search(r'<  id 1 READ reply \+\d+ us: model 29 MX-28, model_number=29, '
+                     r'firmware_version=\d+', text), text
+    assert re.search(r'>  id 1 WRITE 30\+2: goal_position=2048 \(0 rad\)', text), text
+    assert re.search(r'>  id 1 READ \d+\+\d+ .*present_position', text), text
+    assert re.search(r'<  id 1 READ reply \+\d+ us: .*present_position=\d+ \(-?[\d.e-]+ rad\)',
+                     text), text
+    assert 'GARBAGE' not in text and 'no packet' not in text and 'STATUS ERROR' not in text
+    assert re.search(rf'requests: {len(sent)} \(.*\); replies: {len(sent)}$', text, re.MULTILINE)
+    assert text.rstrip().splitlines()[-1] == (
+        'anomalies: 0 without reply, 0 checksum errors, 0 garbage bytes, 0 bytes dropped late, '
+        '0 status errors, 0 echoes')
+    # Read as Protocol 2.0 (forced), the same packets are no packets.
+    forced = subprocess.run([dxl(), 'trace', str(trace), '--protocol', '2'],
+                            capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert forced.returncode == 0, forced.stderr
+    assert decoded_instructions(forced.stdout) == []
+    assert re.search(r'>  8 bytes that are no packet: ff ff 01 04 02 00 ', forced.stdout)
+
+
+def test_a_protocol_1_status_error_is_named_by_its_bits(virtual_bus: StartVirtualBus,
+                                                        tmp_path: pathlib.Path) -> None:
+    bus_process = virtual_bus([1], 1000000, extra_args=['--models', 'AX-12A'])
+    bus = ['--port', bus_process.device, '--baud', '1000000', '--protocol', '1.0']
+    done = subprocess.run([dxl(), 'set', '1', 'ccw_angle_limit', '600', '--raw', *bus],
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert bus_process.control('error 1 overload').startswith('ok')
+    # An echoing adapter: in 1.0 our READ and WRITE coming back look like statuses with errors.
+    assert bus_process.control('adapter echo on').startswith('ok')
+    # Beyond the angle limit: the servo refuses it (the angle limit bit), overloaded besides.
+    trace = tmp_path / 'refused.trace'
+    done = subprocess.run([dxl(), 'set', '1', 'goal_position', '1000', '--raw', *bus,
+                           '--trace', str(trace)], capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    assert done.returncode == 1, done.stdout + done.stderr
+    decoded = subprocess.run([dxl(), 'trace', str(trace)], capture_output=True, text=True,
+                             timeout=TIMEOUT_S)
+    assert decoded.returncode == 0, decoded.stdout + decoded.stderr
+    text = decoded.stdout
+    assert re.search(r'<  id 1 READ reply \+\d+ us: ALERT 0x20: overload error \(the load exceeds '
+                     r'the torque limit\), model 12 AX-12A, model_number=12', text), text
+    assert re.search(r'>  id 1 WRITE 30\+2: goal_position=1000 \(2\.495 rad\)\n.*<  echo of our '
+                     r'WRITE \(the adapter echoes\)\n.*<  id 1 WRITE reply \+\d+ us: STATUS ERROR '
+                     r'0x02: angle limit error \(goal position outside the angle limits\), '
+                     r'ALERT 0x20: overload error', text), text
+    sent = len(sent_instructions_1(trace))
+    assert re.search(rf'requests: {sent} \(.*\); replies: {sent}$', text, re.MULTILINE), text
+    assert text.rstrip().splitlines()[-1] == (
+        'anomalies: 0 without reply, 0 checksum errors, 0 garbage bytes, 0 bytes dropped late, '
+        f'1 status errors, {sent} echoes')
+
+
+def test_protocol_1_sync_write_and_bulk_read_decode_item_by_item(tmp_path: pathlib.Path) -> None:
+    enc, status = protocol1.encode_instruction, protocol1.encode_status
+
+    def model_read(servo_id: int) -> List[str]:
+        return [f'tx {enc(servo_id, Instruction1.READ, bytes([0, 3])).hex(" ")}',
+                f'rx {status(servo_id, 0, bytes([29, 0, 40])).hex(" ")}']
+
+    sync_write = enc(protocol1.BROADCAST_ID, Instruction1.SYNC_WRITE, bytes(
+        [30, 4, 1, *(1000).to_bytes(2, 'little'), *(100).to_bytes(2, 'little'),
+         2, *(3000).to_bytes(2, 'little'), *(200).to_bytes(2, 'little')]))
+    bulk_read = enc(protocol1.BROADCAST_ID, Instruction1.BULK_READ,
+                    PROTOCOL_1.bulk_read_params([(1, 36, 2), (2, 36, 7)]))
+    first = status(1, 0, (1000).to_bytes(2, 'little'))
+    second = status(2, 0, bytes([*(3000).to_bytes(2, 'little'), 0, 0, 0, 0, 121]))
+    read = enc(2, Instruction1.READ, bytes([43, 1]))
+    corrupt = bytearray(status(2, 0, bytes([40])))
+    corrupt[5] ^= 0x01
+    # A ping's answer with the input voltage bit is the ping byte for byte: this adapter, whose
+    # first answer came without an echo, does not echo, so it is the answer.
+    ping = enc(1, Instruction1.PING)
+    assert ping == status(1, protocol1.ErrorBit.INPUT_VOLTAGE)
+    timed = [
+        'baud 1000000', *model_read(1), *model_read(2),
+        f'tx {sync_write.hex(" ")}',
+        f'tx {bulk_read.hex(" ")}',
+        # The adapter's echo, then the answers in the records' order, the second in two reads.
+        f'rx {bulk_read.hex(" ")} {first.hex(" ")} {second[:4].hex(" ")}',
+        f'rx {second[4:].hex(" ")}',
+        f'tx {read.hex(" ")}',
+        f'rx {bytes(corrupt).hex(" ")}',
+        f'tx {ping.hex(" ")}',
+        f'rx {ping.hex(" ")}',
+    ]
+    lines = [f'{1000 + 100 * number} {line}' for number, line in enumerate(timed)]
+    path = tmp_path / 'made1.trace'
+    path.write_text('\n'.join(lines) + '\n')
+    done = subprocess.run([dxl(), 'trace', str(path)], capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    out = done.stdout.splitlines()
+    # No header names the protocol: the requests say it.
+    assert out[0] == 'Protocol 1.0 (its requests are Protocol 1.0 packets)'
+    assert '       0.200 ms <  id 1 READ reply +100 us: model 29 MX-28, model_number=29, ' \
+           'firmware_version=40' in out
+    assert ('       0.500 ms >  broadcast SYNC_WRITE 30+4 id 1: goal_position=1000 (-1.608 rad), '
+            'moving_speed=100 (1.194 rad/s); id 2: goal_position=3000 (1.46 rad), '
+            'moving_speed=200 (2.388 rad/s)') in out
+    assert ('       0.600 ms >  broadcast BULK_READ id 1 36+2 present_position; id 2 36+7 '
+            'present_position,present_speed,present_load,present_voltage') in out
+    assert '       0.700 ms <  echo of our BULK_READ (the adapter echoes)' in out
+    assert '       0.700 ms <  id 1 BULK_READ reply +100 us: present_position=1000 (-1.608 rad)' \
+           in out
+    assert ('       0.800 ms <  id 2 BULK_READ reply +200 us: present_position=3000 (1.46 rad), '
+            'present_speed=0 (0 rad/s), present_load=0 (0 ratio), present_voltage=121 (12.1 V)'
+            ) in out
+    assert '       0.900 ms >  id 2 READ 43+1 present_temperature' in out
+    assert ('       1.000 ms !  CHECKSUM ERROR in a frame from id 2 (the reply to READ): '
+            f'{bytes(corrupt).hex(" ")}') in out
+    assert ('       1.200 ms <  id 1 PING reply +100 us: ALERT 0x01: input voltage error (outside '
+            'the voltage limits)') in out
+    assert out[-3] == 'requests: 6 (1 BULK_READ, 1 PING, 3 READ, 1 SYNC_WRITE); replies: 5'
+    assert out[-1] == ('anomalies: 0 without reply, 1 checksum errors, 0 garbage bytes, '
+                       '0 bytes dropped late, 0 status errors, 1 echoes')
+
+
+def test_a_mixed_trace_has_each_frame_read_as_its_header_says(tmp_path: pathlib.Path) -> None:
+    ax_read = protocol1.encode_instruction(5, Instruction1.READ, bytes([36, 2]))
+    ax_answer = protocol1.encode_status(5, 0, (612).to_bytes(2, 'little'))
+    x_read = encode_instruction(1, Instruction.READ, bytes([132, 0, 4, 0]))
+    # Data holding FF FF: a 1.0 header to the 1.0 scan, inside a 2.0 packet whose CRC holds.
+    x_answer = encode_status(1, 0, bytes([0xFF, 0xFF, 0x05, 0x40]))
+    timed = [
+        f'tx {encode_instruction(1, Instruction.PING).hex(" ")}',
+        f'rx {encode_status(1, 0, bytes([0x06, 0x04, 45])).hex(" ")}',
+        f'tx {protocol1.encode_instruction(5, Instruction1.PING).hex(" ")}',
+        f'rx {protocol1.encode_status(5, 0).hex(" ")}',
+        f'tx {protocol1.encode_instruction(5, Instruction1.READ, bytes([0, 2])).hex(" ")}',
+        f'rx {protocol1.encode_status(5, 0, bytes([12, 0])).hex(" ")}',
+        f'tx {x_read.hex(" ")}',
+        f'rx {x_answer.hex(" ")}',
+        f'tx {ax_read.hex(" ")}',
+        f'rx 00 {ax_answer.hex(" ")}',
+        f'drop {x_answer.hex(" ")} {ax_answer.hex(" ")}',
+    ]
+    lines = ['# dxl bus trace: <monotonic us> tx|rx|drop <hex bytes> | baud <bps>; port /dev/x',
+             *(f'{1000 + 100 * number} {line}' for number, line in enumerate(timed))]
+    path = tmp_path / 'mixed.trace'
+    path.write_text('\n'.join(lines) + '\n')
+    done = subprocess.run([dxl(), 'trace', str(path)], capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    assert done.returncode == 0, done.stdout + done.stderr
+    out = done.stdout.splitlines()
+    assert out[0].startswith('Protocol 2.0 and 1.0 (its requests are packets of both)')
+    assert out[1:12] == [
+        '       0.000 ms >  id 1 PING [2.0]',
+        '       0.100 ms <  id 1 PING reply +100 us: model 1030 XM430-W210, firmware 45',
+        '       0.200 ms >  id 5 PING [1.0]',
+        '       0.300 ms <  id 5 PING reply +100 us',
+        '       0.400 ms >  id 5 READ [1.0] 0+2',
+        '       0.500 ms <  id 5 READ reply +100 us: model 12 AX-12A, model_number=12',
+        '       0.600 ms >  id 1 READ [2.0] 132+4 present_position',
+        '       0.700 ms <  id 1 READ reply +100 us: present_position=1074135039 (1.648e+06 rad)',
+        '       0.800 ms >  id 5 READ [1.0] 36+2 present_position',
+        '       0.900 ms !  GARBAGE 1 bytes (no frame): 00',
+        '       0.900 ms <  id 5 READ reply +100 us: present_position=612 (0.5113 rad)',
+    ]
+    assert out[13:15] == [f'{"":15}      late status of id 1, error 0x00, 4 bytes',
+                          f'{"":15}      late status of id 5, error 0x00, 2 bytes']
+    assert out[-1] == ('anomalies: 0 without reply, 0 CRC/checksum errors, 1 garbage bytes, '
+                       '23 bytes dropped late, 0 status errors, 0 echoes')
+    # Forced to one protocol, the other's packets are no packets.
+    forced = subprocess.run([dxl(), 'trace', str(path), '--protocol', '1.0'],
+                            capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert forced.stdout.splitlines()[0] == 'Protocol 1.0 (--protocol 1)'
+    assert '       0.000 ms >  10 bytes that are no packet: ff ff fd 00 01 03 00 01 19 4e' in \
+        forced.stdout.splitlines()
+    assert decoded_instructions(forced.stdout) == ['PING', 'READ', 'READ']
