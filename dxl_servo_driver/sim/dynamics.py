@@ -474,7 +474,14 @@ _Controller = Union[_Free, _PwmControl, _CurrentControl, _PositionControl, _Velo
 
 
 class ServoDynamics:
-    """Motor, gearbox, controllers, profiles and thermal model of one servo."""
+    """
+    Motor, gearbox, controllers, profiles and thermal model of one servo.
+
+    About 480 lines, on purpose: the per-mode controllers are classes of their own (above), and
+    what is left is the one state of a horn (its motor, position, velocity, temperature, the
+    hand on it and its stops) that every step of every mode advances together; split further,
+    each part would reach into the others' state every control period.
+    """
 
     def __init__(self, input_voltage_v: float | None = None, ambient_c: float = 25.0,
                  start_position_pulse: float | None = None, model: Model | None = None) -> None:

@@ -217,7 +217,13 @@ class Tally:
 
 
 class Decoder:
-    """Turns trace lines into text lines: requests, replies, anomalies, and a summary."""
+    """
+    Turns trace lines into text lines: requests, replies, anomalies, and a summary.
+
+    About 460 lines, on purpose: a reply is understood only through the requests still waiting
+    for one (their ids, what each read, the models and indirect maps learnt so far), so the
+    request texts of both protocols, the replies and the anomalies share that one state.
+    """
 
     def __init__(self, model: Optional[Model] = None,
                  versions: AbstractSet[int] = frozenset({2})) -> None:
