@@ -300,9 +300,14 @@ def test_a_braked_joint_stops_the_follower_and_a_dead_leader_is_held(
         pair.leader.stop(signal.SIGKILL)
         pair.wait_output(pair.follower, f's old (follow.timeout {TIMEOUT:g} s): holding where '
                          'it is')
+        # Holding writes goal = present once, in the cycle after it says so: a hundred cycles
+        # of the follower later that goal is on the wire, and it is the last.
+        for _ in range(int(RATE_HZ)):
+            held = pair.position('arm')
+        assert abs(held - 0.7) < 0.03
         last = pair.goals(1)[-1][0]
         assert last - killed_at < TIMEOUT + 0.7, (last - killed_at)
-        # ... and stays there: a good while later, no goal was written since.
+        # ... and stays there: a hundred cycles more, no goal was written since.
         for _ in range(int(RATE_HZ)):
             held = pair.position('arm')
         assert abs(held - 0.7) < 0.03
