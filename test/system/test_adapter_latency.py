@@ -68,9 +68,11 @@ def test_reply_delay_measures_the_adapter(workdir: pathlib.Path, latency_ms: flo
         bus = Bus(port, 1000000, latency_timer_s=0.001)
         delays = [bus.reply_delay(4) for _ in range(5)]
         assert all(delay is not None for delay in delays), delays
-        # Never sooner than the adapter hands the answer over: the servo's Return Delay Time
-        # (500 us from the factory) and the host's wake-up come on top.
-        assert all(delay >= latency_ms / 1000 for delay in delays if delay is not None), delays
+        # Not sooner than the adapter hands the answer over: the servo's Return Delay Time
+        # (500 us from the factory) and the host's wake-up come on top. The write is dated when
+        # it returns, so a test preempted right there dates it late and that delay comes out
+        # short (15.7 ms of 16 once, beside another make test): the median, with 2 ms to spare.
+        assert sorted(delays)[len(delays) // 2] >= latency_ms / 1000 - 0.002, delays
         if latency_ms == 0.0:   # told from a 16 ms adapter, however loaded the machine
             assert min(delay for delay in delays if delay is not None) < 0.008, delays
         assert bus.reply_delay(9, listen_s=0.05) is None   # nobody there
