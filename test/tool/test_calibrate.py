@@ -14,6 +14,7 @@ import threading
 import time
 from typing import Any, Dict, Iterator, List, Tuple
 
+from dxl_cli import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
 from dxl_servo_driver import config
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.models import model_named
@@ -26,14 +27,9 @@ from processes import (
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-DXL = str(ROOT / 'install' / 'dxl_servo_driver' / 'lib' / 'dxl_servo_driver' / 'dxl')
 BAUD = 1000000
 MODELS = ('XM430-W350', 'XM430-W350', 'XL330-M288')
 RAD_PER_PULSE = [2 * 3.141592653589793 / model_named(name).pulses_per_rev for name in MODELS]
-# What one reading may be off by: a pulse of the position, and the 4 decimals written.
-TOLERANCE = 0.003
-# Generous: a loaded two-core machine; only a failure waits this long.
-EXPECT_TIMEOUT_S = 30.0
 PARAMS = """\
 # A three-joint test arm: its comments and layout must survive calibration.
 /**:
@@ -82,14 +78,6 @@ def spawn(*args: str) -> 'pexpect.spawn[str]':
                          dimensions=(24, 400))
 
 
-def finish(child: 'pexpect.spawn[str]') -> Tuple[int, str]:
-    """Wait for the end; return the exit status and what it printed last."""
-    child.expect(pexpect.EOF)
-    child.close()
-    return child.exitstatus if child.exitstatus is not None else -child.signalstatus, \
-        child.before
-
-
 def turn(bus: VirtualBusProcess, servo_id: int, rad: float, seconds: float = 0.0) -> None:
     """Turn a horn by hand, at the hand's speed; return once it is there (its position read)."""
     answer = bus.control(f'turn {servo_id} {rad} {seconds}')
@@ -100,12 +88,6 @@ def turn(bus: VirtualBusProcess, servo_id: int, rad: float, seconds: float = 0.0
     while abs(bus.get(servo_id, 'present_position') - target) > 1.0:
         assert time.monotonic() < deadline, f'the horn of id {servo_id} did not reach {rad}'
         time.sleep(0.02)
-
-
-def near(value: float) -> str:
-    """Return a regex of how the live display prints a value within TOLERANCE of value."""
-    shown = {f'{value + step / 1000.0:+.3f}' for step in range(-2, 3)}
-    return '(' + '|'.join(re.escape(text) for text in sorted(shown)) + ')'
 
 
 def loaded(path: pathlib.Path) -> Dict[str, Any]:

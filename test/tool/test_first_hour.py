@@ -13,12 +13,12 @@ import pathlib
 import time
 from typing import Dict, List, Tuple
 
+from dxl_cli import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
 from dxl_servo_driver.models import model_named
 from node_harness import Client
 import pexpect
 from processes import NodeProcess, START_TIMEOUT_S, StartVirtualBus, VirtualBusProcess
 import pytest
-from test_calibrate import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
 
 # The joints in the order they are plugged in: (name, id, model, zero pose in servo radians,
 # whether the servo counts down as the joint turns its positive way).

@@ -5,10 +5,10 @@ import pathlib
 import shutil
 from typing import Optional
 
+from dxl_cli import dxl, dxl_executable, TIMEOUT_S
 from dxl_servo_driver.tool import adapters
 import pexpect
 import pytest
-from test_tool_servo import dxl, dxl_executable, TIMEOUT_S
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 U2D2_BY_ID = 'usb-FTDI_USB__-__Serial_Converter_FT6Z5XYZ-if00-port0'

@@ -4,10 +4,10 @@ import pathlib
 import re
 from typing import Dict
 
+from dxl_cli import dxl, dxl_executable, on, one_error_line, TIMEOUT_S
 import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
-from test_tool_servo import dxl, dxl_executable, on, one_error_line, TIMEOUT_S
 import yaml
 
 # Items a restore puts back in the mid-restore failure test: EEPROM first, then RAM gains.

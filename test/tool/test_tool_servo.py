@@ -1,43 +1,12 @@
 """`dxl info/get/set/torque/led/reboot/reset`: the installed executable on a virtual_bus pty."""
 
 import math
-import os
-import subprocess
 from typing import List
 
-from ament_index_python.packages import get_package_prefix
+from dxl_cli import dxl, dxl_executable, on, one_error_line, TIMEOUT_S
 import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
-
-TIMEOUT_S = 60.0
-
-
-def dxl_executable() -> str:
-    """Return the installed `dxl` (symlink install: the package's modules, live)."""
-    path = os.path.join(get_package_prefix('dxl_servo_driver'), 'lib', 'dxl_servo_driver',
-                        'dxl')
-    assert os.access(path, os.X_OK), f'{path} is not an executable (colcon build first)'
-    return path
-
-
-def dxl(*args: str) -> 'subprocess.CompletedProcess[str]':
-    """Run `dxl ARGS` to its end; stdin is not a terminal."""
-    return subprocess.run([dxl_executable(), *args], capture_output=True, text=True,
-                          stdin=subprocess.DEVNULL, timeout=TIMEOUT_S)
-
-
-def on(bus: VirtualBusProcess, *args: str) -> List[str]:
-    """Return the port arguments for a command on this bus."""
-    return [*args, '--port', bus.device]
-
-
-def one_error_line(done: 'subprocess.CompletedProcess[str]', command: str) -> str:
-    """Return the one error line a failed command wrote (asserting that it is one line)."""
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1, done.stderr
-    assert lines[0].startswith(f'dxl {command}: error: '), lines[0]
-    return lines[0]
 
 
 @pytest.fixture

@@ -11,10 +11,10 @@ import re
 import sys
 from typing import List
 
+from dxl_cli import dxl, dxl_executable, on, one_error_line, TIMEOUT_S
 import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
-from test_tool_servo import dxl, dxl_executable, on, one_error_line, TIMEOUT_S
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 PROMPT = r'Press Enter when it is powered: '
