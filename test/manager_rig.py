@@ -3,6 +3,7 @@
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from conditions import wait_until
 from dxl_servo_driver import state_block
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.manager import Manager
@@ -13,7 +14,6 @@ from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 from dxl_servo_driver.transports import SimTransport
-
 
 XM430_UNITS = units_for(model_for(1030))
 SEED_BLOCK = state_block.state_block(model_for(1030), 'present_current')
@@ -85,12 +85,8 @@ class Rig:
         return self.sim.read_register(servo_id, name)
 
     def wait_booted(self, servo_id: int) -> None:
-        deadline = time.monotonic() + 2.0
-        while time.monotonic() < deadline:
-            if self.sim.servo(servo_id).responsive(time.monotonic()):
-                return
-            time.sleep(0.005)
-        raise AssertionError('servo did not boot')
+        wait_until(lambda: self.sim.servo(servo_id).responsive(time.monotonic()), 2.0,
+                   f'servo {servo_id} booted')
 
 
 def params(**extra: Any) -> Dict[str, Any]:
