@@ -168,6 +168,25 @@ class VirtualBusProcess:
         assert match, answer
         return int(match.group(1))
 
+    def wait_get(self, servo_id: Union[int, str], register: str, expected: int,
+                 timeout_s: float = LINE_TIMEOUT_S) -> None:
+        """
+        Wait until a register reads expected; AssertionError with its last value after timeout_s.
+
+        What a node wrote before it answered may still be in the pty's buffer when the console
+        is asked (the console has a thread of its own): a register written by another process
+        is waited for, not read once.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            value = self.get(servo_id, register)
+            if value == expected:
+                return
+            if time.monotonic() > deadline:
+                raise AssertionError(f'{register} of {servo_id} is {value}, not {expected}, '
+                                     f'after {timeout_s} s')
+            time.sleep(0.01)
+
     def stderr_lines(self, timeout_s: float = LINE_TIMEOUT_S) -> List[str]:
         """Return what it wrote to stderr, all of it once it has exited (waits for that)."""
         self.proc.wait(timeout_s)

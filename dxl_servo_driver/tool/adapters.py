@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import os
 import sys
 import time
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 from dxl_servo_driver.tool.common import EXIT_FAILED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 
@@ -32,6 +32,8 @@ PREFIXES = ('ttyUSB', 'ttyACM')
 FTDI_DEFAULT_MS = 16.0
 POLL_S = 0.2
 DEFAULT_FIND_TIMEOUT_S = 60.0
+# udev makes the /dev/serial/by-id links a moment after the kernel made the device.
+BY_ID_GRACE_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -196,7 +198,8 @@ def register(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]') -> None
     parser.set_defaults(run=run)
 
 
-def _wait_change(root: str, before: Sequence[str], gone: bool, timeout_s: float) -> List[str]:
+def _wait_change(root: str, before: Sequence[str], gone: bool, timeout_s: float,
+                 sleep: Callable[[float], None]) -> List[str]:
     """Wait until devices vanish (gone) or appear; return those names."""
     deadline = time.monotonic() + timeout_s
     while True:
@@ -207,27 +210,61 @@ def _wait_change(root: str, before: Sequence[str], gone: bool, timeout_s: float)
             return changed
         if time.monotonic() > deadline:
             return []
-        time.sleep(POLL_S)
+        sleep(POLL_S)
 
 
-def find(root: str, timeout_s: float) -> Adapter:
-    """Ask for the bus's adapter to be unplugged and plugged back; return it."""
+def find(root: str, timeout_s: float,
+         sleep: Callable[[float], None] = time.sleep) -> Adapter:
+    """
+    Ask for the bus's adapter to be unplugged and plugged back; return it.
+
+    sleep is called between two looks at the tree (a test steps the tree's changes with it).
+    """
     before = [adapter.name for adapter in list_adapters(root)]
     if not before:
         raise ToolError('no USB serial adapter is plugged in')
     print(f'{len(before)} adapter(s): {", ".join(before)}. Unplug the servo bus\'s adapter '
           'now ...', flush=True)
-    gone = _wait_change(root, before, True, timeout_s)
+    gone = _wait_change(root, before, True, timeout_s, sleep)
     if not gone:
         raise ToolError(f'no adapter was unplugged within {timeout_s:g} s')
     print(f'{", ".join(gone)} unplugged. Plug it back in ...', flush=True)
     remaining = [name for name in before if name not in gone]
-    back = _wait_change(root, remaining, False, timeout_s)
+    back = _wait_change(root, remaining, False, timeout_s, sleep)
     if not back:
         raise ToolError(f'no adapter came back within {timeout_s:g} s')
     if len(back) > 1:
         raise ToolError(f'{len(back)} adapters appeared ({", ".join(back)}): plug in one only')
-    return next(adapter for adapter in list_adapters(root) if adapter.name == back[0])
+    return _settled(root, back[0], timeout_s, sleep)
+
+
+def _settled(root: str, name: str, timeout_s: float,
+             sleep: Callable[[float], None]) -> Adapter:
+    """
+    Return the adapter that appeared as name once Linux has finished making it.
+
+    A device appears in pieces (its sysfs entry, its driver bound, its /dev node, udev's by-id
+    links last): described at its first sight it may have no driver yet. Waits until the
+    driver is bound and the node is there (at most timeout_s), then for a by-id link a little
+    longer where the adapter has a serial number to make one from.
+    """
+    deadline = time.monotonic() + timeout_s
+    by_id_until: Optional[float] = None
+    while True:
+        adapter = next((each for each in list_adapters(root) if each.name == name), None)
+        now = time.monotonic()
+        if adapter is not None and adapter.driver is not None and os.path.exists(
+                os.path.join(root, 'dev', name)):
+            if adapter.by_id or adapter.serial is None:
+                return adapter
+            by_id_until = now + BY_ID_GRACE_S if by_id_until is None else by_id_until
+            if now > by_id_until:
+                return adapter
+        elif now > deadline:
+            if adapter is None:
+                raise ToolError(f'{name} appeared and went again: plug it in once more')
+            return adapter
+        sleep(POLL_S)
 
 
 def run(args: argparse.Namespace) -> int:

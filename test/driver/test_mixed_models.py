@@ -146,7 +146,8 @@ def test_a_file_and_virtual_bus_with_models_as_a_user_would(
         assert bus.get(4, 'goal_current') == round(0.2 / 2.69e-3)
         assert bus.get(5, 'goal_velocity') == round(2.0 / (0.229 * 2 * math.pi / 60))
         assert node.stop() == 0, node.output()
-        assert all(bus.get(servo_id, 'torque_enable') == 0 for servo_id in ids)
+        for servo_id in ids:
+            bus.wait_get(servo_id, 'torque_enable', 0)
     finally:
         if node is not None:
             node.stop()

@@ -68,7 +68,8 @@ def test_one_bus_of_both_protocols_from_a_file(workdir: pathlib.Path, client: Cl
         low, high = sorted(units['ax'].position_to_rad(raw) for raw in (before, after))
         assert low - 0.02 <= later.position[0] <= high + 0.02
         assert node.stop() == 0, node.output()
-        assert all(bus.get(servo_id, 'torque_enable') == 0 for servo_id in (1, 2, 3, 4))
+        for servo_id in (1, 2, 3, 4):
+            bus.wait_get(servo_id, 'torque_enable', 0)
     finally:
         if node is not None:
             node.stop()

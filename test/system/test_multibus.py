@@ -84,7 +84,7 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
         # And the right node obeys its own namespace.
         response = right_client.call('set_position', name=['r_shoulder'], value=[-0.4])
         assert response.success, response.message
-        assert right_bus.get(11, 'goal_position') == UNITS.zero_raw + round(-0.4 / RAD_PER_PULSE)
+        right_bus.wait_get(11, 'goal_position', UNITS.zero_raw + round(-0.4 / RAD_PER_PULSE))
         assert left_bus.get(2, 'goal_position') == UNITS.zero_raw + round(0.6 / RAD_PER_PULSE)
 
         for node in nodes:
@@ -94,7 +94,8 @@ def test_two_buses_two_namespaces(workdir: pathlib.Path) -> None:
             code = node.wait(EXIT_TIMEOUT_S)
             assert code == 0, node.output()
             assert 'Traceback' not in node.output(), node.output()
-        assert left_bus.get(1, 'torque_enable') == 0 and right_bus.get(11, 'torque_enable') == 0
+        left_bus.wait_get(1, 'torque_enable', 0)
+        right_bus.wait_get(11, 'torque_enable', 0)
     finally:
         for client in clients:
             client.close()

@@ -47,15 +47,15 @@ def test_node_runs_moves_a_joint_and_stops_on_sigint(workdir: pathlib.Path, clie
         # A service call over DDS to another process, answered after the write.
         response = client.call('set_velocity', name=['j2'], value=[1.0])
         assert response.success, response.message
-        assert bus.get(2, 'goal_velocity') == round(1.0 / UNITS.rad_s_per_velocity_raw)
+        bus.wait_get(2, 'goal_velocity', round(1.0 / UNITS.rad_s_per_velocity_raw))
         node.proc.send_signal(signal.SIGINT)
         code = node.wait(EXIT_TIMEOUT_S)
         output = node.output()
         assert code == 0, output
         assert 'Traceback' not in output, output
         # torque_off_on_shutdown (default true): both servos are free.
-        assert bus.get(1, 'torque_enable') == 0
-        assert bus.get(2, 'torque_enable') == 0
+        bus.wait_get(1, 'torque_enable', 0)
+        bus.wait_get(2, 'torque_enable', 0)
     finally:
         if node is not None:
             node.stop()

@@ -40,8 +40,19 @@ def wait_output(node: NodeProcess, pattern: str, timeout_s: float = START_TIMEOU
         time.sleep(POLL_S)
 
 
-def torqued(bus: Any, ids: List[int]) -> List[int]:
-    return [sid for sid in ids if bus.get(sid, 'torque_enable') != 0]
+def torqued(bus: Any, ids: List[int], timeout_s: float = 5.0) -> List[int]:
+    """
+    Return the servos still torqued once the bus has taken what the node wrote (at most timeout_s).
+
+    The node's last writes may still be in the pty's buffer when it has exited: the console,
+    served by a thread of its own, is asked again until every servo is free or time is up.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        on = [sid for sid in ids if bus.get(sid, 'torque_enable') != 0]
+        if not on or time.monotonic() > deadline:
+            return on
+        time.sleep(POLL_S)
 
 
 def check_stopped(node: NodeProcess, bus: Any, ids: List[int]) -> str:

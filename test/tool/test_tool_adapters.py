@@ -3,7 +3,7 @@
 import os
 import pathlib
 import shutil
-from typing import Optional
+from typing import Iterator, List, Optional
 
 from dxl_cli import dxl, dxl_executable, TIMEOUT_S
 from dxl_servo_driver.tool import adapters
@@ -18,6 +18,14 @@ USB = 'sys/devices/pci0000:00/0000:00:14.0/usb1'
 def plug(root: pathlib.Path, name: str, port: str, vendor: str, product: str,
          driver: str, serial: str, latency_ms: Optional[int], by_id: str = '') -> None:
     """Make the tree show one USB serial adapter as Linux does (sysfs, /dev, by-id)."""
+    for _ in plug_steps(root, name, port, vendor, product, driver, serial, latency_ms, by_id):
+        pass
+
+
+def plug_steps(root: pathlib.Path, name: str, port: str, vendor: str, product: str,
+               driver: str, serial: str, latency_ms: Optional[int],
+               by_id: str = '') -> Iterator[None]:
+    """Make the adapter in the order Linux does, pausing (yield) after each change."""
     usb_device = root / USB / port
     interface = usb_device / f'{port}:1.0'
     tty_device = interface / name if name.startswith('ttyUSB') else interface
@@ -25,18 +33,24 @@ def plug(root: pathlib.Path, name: str, port: str, vendor: str, product: str,
     for key, value in (('idVendor', vendor), ('idProduct', product), ('serial', serial),
                        ('product', 'USB <-> Serial Converter')):
         (usb_device / key).write_text(value + '\n')
+    yield
+    tty_class = root / 'sys/class/tty' / name
+    tty_class.mkdir(parents=True)
+    yield
+    os.symlink(os.path.relpath(tty_device, tty_class), tty_class / 'device')
+    yield
     drivers = root / 'sys/bus/usb-serial/drivers' / driver
     drivers.mkdir(parents=True, exist_ok=True)
     os.symlink(os.path.relpath(drivers, tty_device), tty_device / 'driver')
-    tty_class = root / 'sys/class/tty' / name
-    tty_class.mkdir(parents=True)
-    os.symlink(os.path.relpath(tty_device, tty_class), tty_class / 'device')
+    yield
     if latency_ms is not None:
         serial_dir = root / 'sys/bus/usb-serial/devices' / name
         serial_dir.mkdir(parents=True)
         (serial_dir / 'latency_timer').write_text(f'{latency_ms}\n')
+        yield
     (root / 'dev').mkdir(exist_ok=True)
     (root / 'dev' / name).write_text('')
+    yield
     if by_id:
         link_dir = root / 'dev/serial/by-id'
         link_dir.mkdir(parents=True, exist_ok=True)
@@ -147,6 +161,29 @@ def test_find_names_the_adapter_unplugged_and_plugged_back(tree: pathlib.Path) -
     finally:
         child.close()
     assert child.exitstatus == 0
+
+
+def test_find_waits_for_an_adapter_that_appears_in_pieces(tree: pathlib.Path) -> None:
+    # Linux makes a replugged adapter in steps (sysfs entry, driver, /dev node, by-id link
+    # last); each look at the tree here sees one more step, so the first sight of the new name
+    # is an entry with no driver yet. The name, driver and by-id link must all be reported.
+    def changes() -> Iterator[None]:
+        unplug(tree, 'ttyUSB0')
+        yield
+        yield from plug_steps(tree, 'ttyUSB1', '1-1', '0403', '6014', 'ftdi_sio', 'FT6Z5XYZ',
+                              16, U2D2_BY_ID)
+
+    steps = changes()
+    looks: List[float] = []
+
+    def next_step(poll_s: float) -> None:
+        looks.append(poll_s)
+        next(steps, None)
+
+    found = adapters.find(str(tree), 30.0, sleep=next_step)
+    assert (found.device, found.driver, found.latency_ms) == ('/dev/ttyUSB1', 'ftdi_sio', 16.0)
+    assert found.by_id == (f'/dev/serial/by-id/{U2D2_BY_ID}',)
+    assert len(looks) >= 8   # it did look while the adapter was half made
 
 
 def test_find_gives_up_after_its_timeout(tree: pathlib.Path) -> None:
