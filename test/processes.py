@@ -222,7 +222,15 @@ StartVirtualBus = Callable[..., VirtualBusProcess]
 
 def params_yaml(port: str, joints: Mapping[str, Mapping[str, Any]], baud_rate: int = 1000000,
                 loop_rate: float = 50.0, **top: Any) -> str:
-    """Return a node's params file: port, rates, the joints with their keys, then top keys."""
+    """
+    Return a node's params file: port, rates, the joints with their keys, then top keys.
+
+    ping_retries is 10 unless given: the simulator and the node share a loaded machine with a
+    second test worker, and a configure transaction answered late three times in a row (each
+    late reply taken for the next attempt's, the deadline's slack still growing) stopped a
+    node at start-up beside two busy loops. A test of retries gives its own.
+    """
+    top = {'ping_retries': 10, **top}
     lines = ['/**:', '  ros__parameters:', f'    port: "{port}"', f'    baud_rate: {baud_rate}',
              f'    loop_rate: {loop_rate}', f'    joints: [{", ".join(joints)}]']
     lines += [f'    {key}: {value}' for key, value in top.items()]

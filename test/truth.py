@@ -1,9 +1,8 @@
-"""What the simulator's servo really did, sampled, to judge the samples a node published."""
+"""What a simulated servo really did, recorded by the simulator, to judge published samples."""
 
 import bisect
-import threading
 import time
-from typing import Any, List
+from typing import Any, List, Optional
 
 from node_harness import NodeHarness
 from sensor_msgs.msg import JointState
@@ -14,32 +13,56 @@ def stamp_s(msg: Any) -> float:
 
 
 class Truth:
-    """The simulator's wheel position sampled every millisecond, with wall-clock times."""
+    """
+    Every Present Position one simulated servo held, and from when: no sampling, no thread.
+
+    The servo's register changes only when its physics is advanced (SimServo.advance, under the
+    bus lock: at a packet, a register read, a console command). Each new value is recorded
+    there with the wall-clock time (what a node stamps with), read right after the change: a
+    value's end is never dated early, so a sample judged older than its stamp really was (a
+    thread sampling every millisecond was starved on a loaded machine, and its gaps had to be
+    guessed around). A reply carries the value held when its request arrived.
+    """
 
     def __init__(self, h: NodeHarness, servo_id: int) -> None:
-        self._h = h
-        self._id = servo_id
-        self.times: List[float] = []
+        self._servo = h.sim.servo(servo_id)
+        self.times: List[float] = []   # when each value began to be held (wall clock)
         self.raws: List[int] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        advance = self._servo.advance
+        memory = self._servo.memory
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            raw = self._h.reg(self._id, 'present_position')
-            self.times.append(time.time())
-            self.raws.append(raw)
-            time.sleep(0.001)
+        def recorded(now_s: float, lag_s: float = 0.0) -> None:
+            advance(now_s, lag_s)
+            value = memory.get('present_position')
+            if not self.raws or value != self.raws[-1]:
+                self.times.append(time.time())
+                self.raws.append(value)
+        with h.sim.lock:
+            recorded(time.monotonic())
+            self._servo.advance = recorded   # type: ignore[method-assign]
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join()
+        """Stop recording (the servo advances as before)."""
+        del self._servo.advance
+
+    def age_s(self, raw: int, stamp: float, tolerance: int = 0) -> Optional[float]:
+        """
+        Return how long before stamp the servo last held raw (within tolerance pulses).
+
+        0.0 when it held it at or after stamp; None when it never held it (before the end of
+        the record).
+        """
+        for index in range(len(self.raws) - 1, -1, -1):
+            if abs(self.raws[index] - raw) <= tolerance:
+                if index + 1 == len(self.raws):
+                    return 0.0   # still held
+                return max(0.0, stamp - self.times[index + 1])
+        return None
 
     def between(self, start_s: float, end_s: float) -> List[int]:
-        """Return the raw positions sampled in [start_s, end_s], with one sample either side."""
-        low = max(0, bisect.bisect_left(self.times, start_s) - 1)
-        high = min(len(self.times), bisect.bisect_right(self.times, end_s) + 1)
+        """Return the values held at some time in [start_s, end_s]."""
+        low = max(0, bisect.bisect_right(self.times, start_s) - 1)
+        high = bisect.bisect_right(self.times, end_s)
         return self.raws[low:high]
 
 

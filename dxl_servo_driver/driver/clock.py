@@ -22,6 +22,11 @@ class TickClock:
     before its request went out: it answers an earlier request. The bound is relaxed by
     drift_ppm between samples, for the two clocks' crystals.
 
+    What this can promise: a sample passed was taken no more than tolerance_ms before its
+    request, plus the bound's own error, c - bound = the quickest any reply came back after its
+    sample (wire, the adapter's latency at its shortest) and the tick's 1 ms resolution. A late
+    copy of a reply one cycle old is refused as long as the cycle is longer than that.
+
     The offset holds only while the servo runs on: whoever stops watching a servo (cleanup,
     deactivate, a lost port) must reset() it, since the servo may have restarted meanwhile (or,
     the simulator, be a new one), its tick from 0. A bound no sample confirmed for forget_after_s

@@ -205,14 +205,17 @@ STATE_TRACE_FLUSH_S = 0.1
 
 class StateTracer:
     """
-    Log every servo's Present Position every period_s, with the wall-clock time.
+    Log every servo's Present Position when it changes, and all of them every period_s.
 
     One line per servo and sample: `<time.time()> <id> <present_position raw>`. The value is the
     register as a read arriving at that moment would see it: the physics is not advanced for
-    the trace, so tracing changes nothing the servos answer. The server takes the samples from
-    its own thread between packets (sample(), next_s), so a sample and a reply never race. The
-    wall clock is what a ROS node stamps its messages with, so a test can tell which time a
-    published sample belongs to.
+    the trace, so tracing changes nothing the servos answer. The server looks after every
+    packet and every idle physics step (sample()), from its own thread, so a sample and a reply
+    never race, and a value is logged as soon as a packet could have seen it: a change is never
+    dated before it was made, and the value it replaced is dated as held until then (a test
+    judging a published sample against the trace can call it stale only if it was). The wall
+    clock is what a ROS node stamps its messages with, so a test can tell which time a published
+    sample belongs to.
     """
 
     def __init__(self, out: TextIO, bus: SimBus, period_s: float = STATE_TRACE_PERIOD_S,
@@ -221,24 +224,30 @@ class StateTracer:
         self._bus = bus
         self._period_s = period_s
         self._wall_clock = wall_clock
-        self.next_s = float('-inf')     # when the next sample is due (the server's clock)
+        self._last: dict[int, int] = {}   # the last value logged, by servo id
+        self.next_s = float('-inf')     # when the next sample of every servo is due
         self._flush_s = float('-inf')
 
     def sample(self, now_s: float) -> None:
-        """Log one sample of every servo if one is due at now_s (the server's clock)."""
-        if now_s < self.next_s:
-            return
-        self.next_s += self._period_s
-        if self.next_s <= now_s:
-            # Behind (a long reply wait): the next one a period from now, no burst of samples.
-            self.next_s = now_s + self._period_s
+        """Log the servos whose value changed, or every servo if a sample is due at now_s."""
+        due = now_s >= self.next_s
+        if due:
+            self.next_s += self._period_s
+            if self.next_s <= now_s:
+                # Behind (a long reply wait): the next one a period from now, no burst.
+                self.next_s = now_s + self._period_s
         bus = self._bus
+        last = self._last
+        lines = []
         with bus.lock:
             wall_s = self._wall_clock()
-            lines = ''.join(
-                f'{wall_s:.6f} {servo.servo_id} {servo.memory.get("present_position")}\n'
-                for servo in sorted(bus.servos(), key=lambda servo: servo.servo_id))
-        self._out.write(lines)
+            for servo in sorted(bus.servos(), key=lambda servo: servo.servo_id):
+                value = servo.memory.get('present_position')
+                if due or last.get(servo.servo_id) != value:
+                    last[servo.servo_id] = value
+                    lines.append(f'{wall_s:.6f} {servo.servo_id} {value}\n')
+        if lines:
+            self._out.write(''.join(lines))
         if now_s >= self._flush_s:
             self._flush_s = now_s + STATE_TRACE_FLUSH_S
             self._out.flush()
@@ -440,8 +449,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--trace-goals', default=None, metavar='FILE',
                         help='append "<monotonic time> <id> <goal_position>" per goal written')
     parser.add_argument('--trace-state', default=None, metavar='FILE',
-                        help='append "<wall-clock time> <id> <present_position>" for every '
-                             f'servo every {STATE_TRACE_PERIOD_S * 1000:g} ms')
+                        help='append "<wall-clock time> <id> <present_position>" for a servo '
+                             'whose position changed, after every packet, and for every servo '
+                             f'every {STATE_TRACE_PERIOD_S * 1000:g} ms')
     args = parser.parse_args(argv)
     bad_ids = [i for i in args.ids if not 0 <= i <= control.MAX_SERVO_ID]
     if bad_ids:

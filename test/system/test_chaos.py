@@ -79,15 +79,16 @@ NAMES = tuple(JOINTS)
 UNITS = units_for(model_for(xm430.MODEL_NUMBER))
 PULSES_PER_REV = UNITS.pulses_per_rev
 RAD_PER_PULSE = UNITS.rad_per_pulse
-# Quantisation (1 pulse), a holding controller's 1-pulse dither between two trace samples, and
-# the float round trip. With the wheel at 2.6 pulses/ms this and the 2 ms trace step leave a
-# resolution of a few ms: a wheel sample 5 ms older than allowed is caught most of the time,
-# 10 ms (half a cycle) practically always; late copies are 5-50 ms late.
+# Quantisation (1 pulse), a holding controller's 1-pulse dither, and the float round trip. The
+# trace has every value the moment the server saw it change (and every servo every
+# TRACE_PERIOD_S), so a sample is judged by when its value stopped being held, not by guesses
+# between samples; late copies are 5-50 ms late, and a cycle is 20 ms.
 TOLERANCE_PULSES = 3
 TRACE_PERIOD_S = 0.002
-# The node's own tolerance (driver/clock.py, TickClock): a sample may be 2 ms older than its
-# request.
-EARLIER_S = 0.002
+# The node's promise (driver/clock.py, TickClock): a sample is at most 2 ms older than its
+# request, plus the tick's 1 ms and the quickest reply's transit, here the simulator's adapter
+# latency and, for the reply's wire and the proxy's second pty, 1 ms more.
+EARLIER_S = 0.002 + 0.001 + ADAPTER_LATENCY_MS / 1000.0 + 0.001
 # A sample is taken when its request reaches the servos, after the stamp: the sync read at
 # once, a retry while the cycle has time (0.9 period), a restart check after that; each one-off
 # read has a deadline of latency timer + 2 ms slack + bytes. Plus a trace period (the next
