@@ -4,16 +4,19 @@ Grippers: goals from a gripper command, and grasp detection. No bus, no ROS.
 A gripper is a current_based_position joint: its goal current bounds the current the position
 controller may use, so closing on an object stops there and holds it with that current instead
 of overloading. A grasp is a gripper stalled short of its goal with its current at the limit.
+A goal with a speed (ParallelGripperCommand's velocity) is walked to: its setpoint moves from
+where the gripper was at that speed, one step a cycle, whatever the servo's own profile.
 """
 
+from collections import deque
 from dataclasses import dataclass
 import math
-from typing import Optional, Protocol, Tuple
+from typing import Deque, Optional, Protocol, Sequence, Tuple
 
 from dxl_servo_driver.errors import BadRequest
 
 __all__ = ['GraspDetector', 'GripperError', 'GripperListener', 'GripperOutcome', 'GripperRun',
-           'GripperSample', 'GripperSpec', 'gripper_goal']
+           'GripperSample', 'GripperSpec', 'gripper_goal', 'parallel_command']
 
 # Stalled: slower than this ...
 STALL_RAD_S = 0.05
@@ -85,6 +88,44 @@ def gripper_goal(spec: GripperSpec, position: float, ratio: float,
     return goal, max_effort
 
 
+def parallel_command(joint: str, names: Sequence[str], positions: Sequence[float],
+                     velocities: Sequence[float], efforts: Sequence[float]
+                     ) -> Tuple[float, float, float]:
+    """
+    Return (position, speed, effort) of a ParallelGripperCommand's command for joint.
+
+    The command is a JointState naming this one joint, with one position and, optionally, one
+    velocity (the most speed on the way) and one effort (the most it may close with); an empty
+    array is not given, and so is 0 (MoveIt fills them only when configured: 0 here means the
+    configured profile, or the configured goal current, as GripperCommand's max_effort 0 does).
+    Raises GripperError naming what is wrong; the travel and the current limit are the
+    arm's to check.
+    """
+    if list(names) != [joint]:
+        given = ', '.join(repr(name) for name in names) or 'none'
+        raise GripperError(f'command.name must be the one joint of this action, {joint!r}; '
+                           f'got {given}')
+    if len(positions) != 1:
+        raise GripperError(f'command.position must hold one position (rad) for {joint!r}, '
+                           f'got {len(positions)} values')
+    for field, values in (('velocity', velocities), ('effort', efforts)):
+        if len(values) > 1:
+            raise GripperError(f'command.{field} must be empty or hold one value for '
+                               f'{joint!r} (as command.name), got {len(values)}')
+    position = positions[0]
+    if not math.isfinite(position):
+        raise GripperError(f'command.position {position} is not a finite number')
+    speed = velocities[0] if velocities else 0.0
+    effort = efforts[0] if efforts else 0.0
+    if not math.isfinite(speed) or speed < 0.0:
+        raise GripperError(f'command.velocity {speed} is not a finite speed >= 0 (the most '
+                           'the gripper may move at; 0: no limit)')
+    if not math.isfinite(effort) or effort < 0.0:
+        raise GripperError(f'command.effort {effort} is not a finite effort >= 0 (the most '
+                           'the gripper may close with; 0: the configured goal current)')
+    return position, speed, effort
+
+
 class GraspDetector:
     """
     Grasp of one gripper: stalled short of its goal, at its current limit, long enough.
@@ -129,12 +170,13 @@ ABORTED = 'aborted'
 
 @dataclass(frozen=True)
 class GripperSample:
-    """What a gripper goal reports: position (rad), effort (N*m), stalled, reached."""
+    """What a gripper goal reports: position (rad), effort (N*m), stalled, reached, velocity."""
 
     position: float
     effort: float
     stalled: bool
     reached_goal: bool
+    velocity: float = 0.0   # rad/s
 
 
 @dataclass(frozen=True)
@@ -167,14 +209,21 @@ class GripperRun:
 
     goal_raw is the Goal Position it queued: when the servo's goal is something else, another
     command took the gripper (a ~/gripper message, a trajectory, a service) and the goal ends.
+    With a speed (joint units per second) and where the gripper was (start_rad), the goal is
+    walked to: next_setpoint gives each cycle's goal, and queued takes the raw value it became.
     """
 
     def __init__(self, joint: str, goal_rad: float, goal_raw: int, tolerance_rad: float,
-                 listener: GripperListener, now_s: float, scale: float = 1.0) -> None:
+                 listener: GripperListener, now_s: float, scale: float = 1.0,
+                 start_rad: Optional[float] = None, speed: float = 0.0) -> None:
         self.joint = joint
         self._still_below = STALL_RAD_S * abs(scale)   # joint units per second
         self.goal_rad = goal_rad
-        self.goal_raw = goal_raw
+        # The last few Goal Positions this goal queued: a step written a cycle late is ours.
+        self._queued: Deque[int] = deque([goal_raw], maxlen=4)
+        walked = speed > 0.0 and start_rad is not None and start_rad != goal_rad
+        self._walk = (start_rad, now_s, speed) if walked else None
+        self.setpoint = start_rad if walked else goal_rad
         self.tolerance_rad = tolerance_rad
         self.listener = listener
         self.cancel_requested = False
@@ -183,13 +232,35 @@ class GripperRun:
         self._still_since: Optional[float] = None
         self.last: Optional[GripperSample] = None
 
+    @property
+    def walking(self) -> bool:
+        """Return True while the setpoint of a goal with a speed is short of the goal."""
+        return self.setpoint != self.goal_rad
+
+    def next_setpoint(self, now_s: float) -> Optional[float]:
+        """Return this cycle's goal of a goal walked at its speed (None: nothing to queue)."""
+        if self._walk is None or not self.walking:
+            return None
+        start, start_s, speed = self._walk
+        assert start is not None
+        distance = self.goal_rad - start
+        # From the time it began, not per cycle: a late cycle catches up, never adds up.
+        travelled = speed * max(0.0, now_s - start_s)
+        self.setpoint = (self.goal_rad if travelled >= abs(distance)
+                         else start + math.copysign(travelled, distance))
+        return self.setpoint
+
+    def queued(self, goal_raw: int) -> None:
+        """Take the raw Goal Position one of its steps was queued as."""
+        self._queued.append(goal_raw)
+
     def watch(self, now_s: float, position: Optional[float], velocity: float, effort: float,
               grasping: bool, goal_raw_now: Optional[int], trouble: str
               ) -> Optional[GripperOutcome]:
         """Take one cycle (position None: no fresh sample); return the outcome if it ends."""
         if trouble:
             return GripperOutcome(ABORTED, f'joint {self.joint!r} {trouble}', self.last)
-        if goal_raw_now == self.goal_raw:
+        if goal_raw_now in self._queued:
             self._written = True
         elif self._written:
             return GripperOutcome(PREEMPTED, f'joint {self.joint!r} was given another goal',
@@ -200,7 +271,7 @@ class GripperRun:
         if position is None:
             return None
         reached = abs(position - self.goal_rad) <= self.tolerance_rad
-        sample = GripperSample(position, effort, grasping, reached)
+        sample = GripperSample(position, effort, grasping, reached, velocity)
         self.last = sample
         if now_s >= self._next_feedback_s:
             self._next_feedback_s = now_s + self.listener.feedback_period_s
@@ -210,7 +281,8 @@ class GripperRun:
         if grasping:
             return GripperOutcome(STALLED, f'stalled at {position:.4f} rad holding '
                                   f'{effort:.3f} N*m: an object in its grip', sample)
-        if abs(velocity) < self._still_below:
+        if abs(velocity) < self._still_below and not self.walking:
+            # A slow walk is not a stop: judged only once the setpoint is the goal.
             if self._still_since is None:
                 self._still_since = now_s
             elif now_s - self._still_since >= STOPPED_S:

@@ -1,10 +1,13 @@
 """
-MoveIt's actions: control_msgs' FollowJointTrajectory and GripperCommand.
+MoveIt's actions: control_msgs' FollowJointTrajectory, GripperCommand, ParallelGripperCommand.
 
 ros2_controllers' joint_trajectory_controller is what MoveIt usually talks to for an arm: the
 same codes and the same tolerances here mean MoveIt sees the same results. GripperCommand drives
 a `gripper: true` joint with an effort limit and ends when it reached its goal, stalled on an
 object (succeeded, stalled), stopped short, or was preempted, canceled or aborted.
+ParallelGripperCommand (what MoveIt on Jazzy sends a parallel gripper) is the same goal given
+as a sensor_msgs/JointState (the joint's name, position, and optionally the most velocity and
+effort), its feedback and result the joint's state as a JointState.
 
 A goal is read whole before anything moves; a refused one ends at once with its error_code and
 an error_string naming the cause (accepted, then aborted: a rejected goal carries no result, and
@@ -28,7 +31,7 @@ import time
 from typing import Any, Deque, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from builtin_interfaces.msg import Duration
-from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver import gripper
 from dxl_servo_driver import trajectory as traj
@@ -228,17 +231,21 @@ class Actions:
         # GripperCommand: ~/<joint>/gripper_cmd for every gripper joint, and ~/gripper_cmd as
         # well when there is one (MoveIt's GripperCommand controller sends to
         # <controller>/gripper_cmd: the controller is the node, or the node's joint).
+        # ParallelGripperCommand beside it, named alike: ~/<joint>/parallel_gripper_cmd and
+        # ~/parallel_gripper_cmd.
         self.grippers: Dict[str, ActionServer] = {}
         joints = [joint.name for joint in host.config.joints if joint.gripper]
-        names = {f'{base}/{name}/gripper_cmd': name for name in joints}
-        if len(joints) == 1:
-            names[f'{base}/gripper_cmd'] = joints[0]
-        for action, joint in names.items():
-            self.grippers[action] = ActionServer(
-                self.node, GripperCommand, action,
-                execute_callback=self._gripper_execute(joint),
-                goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=self._cancel,
-                **_QUEUES)
+        for kind, leaf in ((GripperCommand, 'gripper_cmd'),
+                           (ParallelGripperCommand, 'parallel_gripper_cmd')):
+            names = {f'{base}/{name}/{leaf}': name for name in joints}
+            if len(joints) == 1:
+                names[f'{base}/{leaf}'] = joints[0]
+            for action, joint in names.items():
+                self.grippers[action] = ActionServer(
+                    self.node, kind, action,
+                    execute_callback=self._gripper_execute(joint, kind),
+                    goal_callback=lambda goal: GoalResponse.ACCEPT,
+                    cancel_callback=self._cancel, **_QUEUES)
         self._thread = threading.Thread(target=self._spin, name='dxl_actions', daemon=True)
         self._thread.start()
 
@@ -360,52 +367,60 @@ class Actions:
             handle.abort()
         return result
 
-    # GripperCommand ---------------------------------------------------------------------------
-    def _gripper_execute(self, joint: str) -> Any:
+    # GripperCommand and ParallelGripperCommand ------------------------------------------------
+    def _gripper_execute(self, joint: str, kind: Any) -> Any:
         # A coroutine function of its own: rclpy awaits only what is one (a lambda returning a
         # coroutine would hand the coroutine over as the result).
         async def execute(handle: Any) -> Any:
-            return await self._grip(handle, joint)
+            return await self._grip(handle, joint, kind)
         return execute
 
-    async def _grip(self, handle: Any, joint: str) -> Any:
+    async def _grip(self, handle: Any, joint: str, kind: Any) -> Any:
         goal_id = bytes(handle.goal_id.uuid)
-        label = f'gripper_cmd goal {goal_id.hex()[:8]} for {joint!r}'
+        parallel = kind is ParallelGripperCommand
+        name = 'parallel_gripper_cmd' if parallel else 'gripper_cmd'
+        label = f'{name} goal {goal_id.hex()[:8]} for {joint!r}'
         channel = _Channel(self._executor)
         listener = _GoalListener(channel, 1.0 / self._host.config.action_monitor_rate)
         command = handle.request.command
         try:
             if not self._host.active:
                 raise BadRequest('the driver is not active (activate it first)')
-            run = self._host.arm.submit_gripper_goal(joint, command.position,
-                                                     command.max_effort, listener)
+            arm = self._host.arm
+            if parallel:
+                run = arm.submit_parallel_gripper_goal(joint, command, listener)
+            else:
+                run = arm.submit_gripper_goal(joint, command.position, command.max_effort,
+                                              listener)
         except BadRequest as exc:
-            # GripperCommand's result has no error field: the log says why.
+            # Neither action's result has an error field: the log says why.
             self._log.warning(f'{label} refused: {exc}')
             handle.abort()
-            return GripperCommand.Result()
+            return kind.Result()
         with self._lock:
             self._runs[goal_id] = run
         try:
             while True:
-                kind, payload = await channel.take()
-                if kind == 'feedback':
-                    feedback = GripperCommand.Feedback()
-                    _fill_gripper(feedback, payload)
+                event, payload = await channel.take()
+                if event == 'feedback':
+                    feedback = kind.Feedback()
+                    self._fill_gripper(feedback, joint, payload)
                     handle.publish_feedback(feedback)
                     continue
-                return self._gripper_ended(handle, label, payload)
+                return self._gripper_ended(handle, label, joint, kind, payload)
         finally:
             with self._lock:
                 self._runs.pop(goal_id, None)
 
-    def _gripper_ended(self, handle: Any, label: str, outcome: gripper.GripperOutcome) -> Any:
-        result = GripperCommand.Result()
+    def _gripper_ended(self, handle: Any, label: str, joint: str, kind: Any,
+                       outcome: gripper.GripperOutcome) -> Any:
+        result = kind.Result()
         if outcome.sample is not None:
-            _fill_gripper(result, outcome.sample)
+            self._fill_gripper(result, joint, outcome.sample)
         if outcome.how in (gripper.REACHED, gripper.STALLED):
             # A stall on an object is what closing on it is for: succeeded, stalled and not
-            # reached_goal say so (gripper_action_controller's allow_stalling: true).
+            # reached_goal say so (gripper_action_controller's allow_stalling: true; MoveIt's
+            # ParallelGripperCommand handle on Jazzy judges by the status alone).
             self._log.info(f'{label}: {outcome.message}')
             handle.succeed()
         elif outcome.how == gripper.CANCELED and handle.is_cancel_requested:
@@ -415,9 +430,18 @@ class Actions:
             handle.abort()
         return result
 
-
-def _fill_gripper(message: Any, sample: gripper.GripperSample) -> None:
-    message.position = float(sample.position)
-    message.effort = float(sample.effort)
-    message.stalled = bool(sample.stalled)
-    message.reached_goal = bool(sample.reached_goal)
+    def _fill_gripper(self, message: Any, joint: str, sample: gripper.GripperSample) -> None:
+        """Fill a feedback or result: GripperCommand's fields, or ParallelGripperCommand's."""
+        if hasattr(message, 'position'):
+            message.position = float(sample.position)
+            message.effort = float(sample.effort)
+        else:
+            state = message.state
+            state.header.stamp = self._host.get_clock().now().to_msg()
+            state.name = [joint]
+            state.position = [float(sample.position)]
+            state.velocity = [float(sample.velocity)]
+            state.effort = [float(sample.effort)]
+        if hasattr(message, 'stalled'):   # not in ParallelGripperCommand's feedback
+            message.stalled = bool(sample.stalled)
+            message.reached_goal = bool(sample.reached_goal)

@@ -21,6 +21,7 @@ from dxl_servo_driver.commands import split_joint_state
 from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
 from dxl_servo_driver.manager import IDX_EFFORT, IDX_POSITION, IDX_VELOCITY, Manager, Result
+from dxl_servo_driver.models import modes
 
 __all__ = ['Arm']
 
@@ -128,7 +129,9 @@ class Arm:
         return Result(True, f'trajectory of {len(trajectory.points)} points accepted')
 
     def prepare_goals(self, now_s: float) -> None:
-        """Queue this cycle's trajectory goals (called by the cycle before its write)."""
+        """Queue this cycle's trajectory and gripper goals (the cycle, before its write)."""
+        if self.gripper_runs:
+            self._walk_grippers(now_s)
         manager = self._host.manager
         goals = self.trajectories.step(now_s, self._sense, manager.joint_trouble)
         if not goals:
@@ -205,20 +208,23 @@ class Arm:
         goals = [('current', [servo.name], [current])] if current is not None else []
         return self._queue_all(goals + [('position', [servo.name], [goal])])
 
-    # gripper goals (the GripperCommand action) --------------------------------------------
+    # gripper goals (the GripperCommand and ParallelGripperCommand actions) ----------------
     def submit_gripper_goal(self, name: str, position: float, max_effort_nm: float,
-                            listener: gripper.GripperListener) -> gripper.GripperRun:
+                            listener: gripper.GripperListener, speed: float = 0.0,
+                            effort_field: str = 'max_effort') -> gripper.GripperRun:
         """
         Queue a gripper goal and watch it; raise GripperError saying why not.
 
         position in rad, max_effort_nm the effort limit in N*m (0: the configured goal
-        current). A goal under way on the joint is preempted.
+        current), speed the most rad/s on the way (0: the servo's own profile), effort_field
+        the name of the effort in refusals. A goal under way on the joint is preempted.
         """
         manager = self._host.manager
-        servo = self._gripper_servo(name)
-        torque_constant = abs(servo.units.joint_nm_per_a)   # max_effort is a magnitude
         if not math.isfinite(max_effort_nm) or max_effort_nm < 0.0:
-            raise GripperError(f'max_effort {max_effort_nm} N*m is not a finite effort >= 0')
+            raise GripperError(f'{effort_field} {max_effort_nm} N*m is not a finite effort '
+                               '>= 0')
+        servo = self._gripper_servo(name, max_effort_nm, effort_field)
+        torque_constant = abs(servo.units.joint_nm_per_a)   # max_effort is a magnitude
         current = max_effort_nm / torque_constant if max_effort_nm > 0.0 else math.nan
         spec = GripperSpec(servo.name, servo.joint.gripper_open, servo.joint.gripper_closed,
                            servo.units.current_to_a(servo.limits.get('current_limit', 0)))
@@ -227,34 +233,98 @@ class Arm:
         except GripperError as exc:
             # Said in the action's unit, N*m, not the current it was turned into.
             raise GripperError(str(exc).replace(
-                f'max_effort {current:g} A', f'max_effort {max_effort_nm:g} N*m '
+                f'max_effort {current:g} A', f'{effort_field} {max_effort_nm:g} N*m '
                 f'({current:g} A at {torque_constant:g} N*m/A)')) from None
         checked = manager.check_goals('position', [name], [goal])
         if not checked.success:
             raise GripperError(checked.message)
+        start = self._walk_start(servo, goal, speed)
+        first = goal if start is None else start
         goals = [('current', [name], [current_a])] if current_a is not None else []
-        queued = self._queue_all(goals + [('position', [name], [goal])])
-        if not queued.success:
-            raise GripperError(queued.message)
         tolerance = servo.joint.goal_tolerance or self._host.config.goal_tolerance
-        run = gripper.GripperRun(name, goal, checked.value[0][2], tolerance, listener,
-                                 time.monotonic(), servo.joint.ratio)
+        # Queued and filed under one lock: a walk step of the goal this one preempts is
+        # never queued after this goal's own. (Only the goal queue's lock is taken inside:
+        # the cycle takes this one with the manager's lock held.)
         with self._gripper_lock:
+            first_raw = checked.value[0][2]
+            if start is not None:
+                stepped = manager.check_goals('position', [name], [start])
+                if not stepped.success:
+                    raise GripperError(stepped.message)
+                first_raw = stepped.value[0][2]
+            queued = self._queue_all(goals + [('position', [name], [first])])
+            if not queued.success:
+                raise GripperError(queued.message)
+            run = gripper.GripperRun(name, goal, first_raw, tolerance, listener,
+                                     time.monotonic(), servo.joint.ratio, start, speed)
             old = self.gripper_runs.get(name)
             self.gripper_runs[name] = run
         if old is not None:
             old.listener.ended(gripper.GripperOutcome(
-                gripper.PREEMPTED, f'preempted by a new gripper_cmd goal for {name!r}',
-                old.last))
+                gripper.PREEMPTED, f'preempted by a new gripper goal for {name!r}', old.last))
         return run
 
-    def _gripper_servo(self, name: str) -> Any:
+    def submit_parallel_gripper_goal(self, name: str, command: Any,
+                                     listener: gripper.GripperListener) -> gripper.GripperRun:
+        """
+        Queue a ParallelGripperCommand's command (a sensor_msgs/JointState) for joint name.
+
+        Raises GripperError saying why not (gripper.parallel_command, submit_gripper_goal).
+        """
+        position, speed, effort = gripper.parallel_command(
+            name, list(command.name), list(command.position), list(command.velocity),
+            list(command.effort))
+        return self.submit_gripper_goal(name, position, effort, listener, speed=speed,
+                                        effort_field='command.effort')
+
+    def _walk_start(self, servo: Any, goal: float, speed: float) -> Optional[float]:
+        """Return where a goal with a speed starts its walk (None: no speed, go at once)."""
+        if speed <= 0.0:
+            return None
+        if not math.isfinite(speed):
+            raise GripperError(f'speed {speed} is not a finite speed >= 0')
+        if servo.state is None:
+            raise GripperError(f'no position of {servo.name!r} read yet: a goal with a '
+                               'velocity walks from it')
+        # From the present position, within the travel (a hand may have pushed it past).
+        low, high = sorted((servo.joint.gripper_open, servo.joint.gripper_closed))
+        return min(high, max(low, servo.position_rad(servo.state[IDX_POSITION])))
+
+    def _walk_grippers(self, now_s: float) -> None:
+        """Queue this cycle's step of each gripper goal walked at its speed."""
+        manager = self._host.manager
+        refused = []
+        with self._gripper_lock:
+            for run in self.gripper_runs.values():
+                setpoint = run.next_setpoint(now_s)
+                if setpoint is None:
+                    continue
+                checked = manager.check_goals('position', [run.joint], [setpoint])
+                result = (manager.command('position', [run.joint], [setpoint])
+                          if checked.success else checked)
+                if result.success:
+                    run.queued(checked.value[0][2])
+                else:
+                    refused.append((run, result.message))
+            for run, _ in refused:
+                del self.gripper_runs[run.joint]
+        for run, why in refused:
+            run.listener.ended(gripper.GripperOutcome(
+                gripper.ABORTED, f'its next step was refused: {why}', run.last))
+
+    def _gripper_servo(self, name: str, effort_nm: float = 0.0,
+                       effort_field: str = 'max_effort') -> Any:
         servo = self._host.manager.servos.get(name)
         if servo is None:
             raise GripperError(f'unknown joint {name!r}')
         if not servo.joint.gripper:
             raise GripperError(f'joint {name!r} is not a gripper (set {name}.gripper: true)')
         if servo.mode != 'current_based_position':
+            if effort_nm > 0.0 and 'current' not in modes.BY_NAME[servo.mode].commands:
+                raise GripperError(
+                    f'{effort_field} {effort_nm:g} N*m needs current control: gripper '
+                    f'{name!r} is in {servo.mode} mode, which has none (only '
+                    'current_based_position limits the current it closes with)')
             raise GripperError(f'gripper {name!r} is in {servo.mode} mode, not '
                                'current_based_position')
         return servo

@@ -11,7 +11,7 @@ import pathlib
 from typing import Any, Dict, List, Tuple
 import xml.etree.ElementTree as ElementTree
 
-from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.action import FollowJointTrajectory, ParallelGripperCommand
 from dxl_servo_driver.config import validate
 from dxl_servo_driver.tool.yaml_edit import flatten
 from node_harness import NodeHarness
@@ -88,11 +88,11 @@ def test_the_srdf_groups_are_what_the_controllers_drive() -> None:
     manager = controllers['moveit_simple_controller_manager']
     by_type = {manager[name]['type']: manager[name] for name in manager['controller_names']}
     assert by_type['FollowJointTrajectory']['joints'] == arm
-    assert by_type['GripperCommand']['joints'] == grippers
+    assert by_type['ParallelGripperCommand']['joints'] == grippers
 
 
 @pytest.mark.parametrize('kind, action', [('FollowJointTrajectory', FollowJointTrajectory),
-                                          ('GripperCommand', GripperCommand)])
+                                          ('ParallelGripperCommand', ParallelGripperCommand)])
 def test_each_controller_finds_the_nodes_action(kind: str, action: Any) -> None:
     controllers = yaml.safe_load((MOVEIT / 'moveit_controllers.yaml').read_text())
     manager = controllers['moveit_simple_controller_manager']

@@ -16,7 +16,7 @@ from typing import Any, Callable, Dict, Iterator, List, Tuple
 
 from action_msgs.msg import GoalStatus
 from conditions import wait_until
-from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from dxl_servo_driver.config import ConfigError, validate
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
@@ -139,10 +139,16 @@ def test_a_gripper_goal_beyond_the_travel_is_refused_on_its_own_paths(h: NodeHar
     assert h.node is not None
     for name in ('claw', 'pincer'):
         client = action(h, GripperCommand, f'{name}/gripper_cmd')
+        parallel = action(h, ParallelGripperCommand, f'{name}/parallel_gripper_cmd')
         for value in BEYOND[name]:
             goal = GripperCommand.Goal()
             goal.command.position = value
             status, _ = ended(client, goal)
+            assert status == GoalStatus.STATUS_ABORTED, (name, value)
+            command = ParallelGripperCommand.Goal()
+            command.command.name = [name]
+            command.command.position = [value]
+            status, _ = ended(parallel, command)
             assert status == GoalStatus.STATUS_ABORTED, (name, value)
             result = h.node.arm.gripper_command(gripper_topic(name, value))
             assert not result.success and 'beyond the travel' in result.message, result

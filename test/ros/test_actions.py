@@ -1,5 +1,5 @@
 """
-FollowJointTrajectory as MoveIt sends it, through real rclpy action clients.
+FollowJointTrajectory and the gripper actions as MoveIt sends them, through real rclpy clients.
 
 The node runs on the simulated bus at the wire's timing (every byte takes its time at 1 Mbps).
 
@@ -9,14 +9,16 @@ error_string naming the cause, feedback at its rate, and where the simulated ser
 """
 
 import math
+import re
 import time
 from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from conditions import wait_until
-from control_msgs.action import FollowJointTrajectory, GripperCommand
+from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from control_msgs.msg import JointTolerance
+from dxl_servo_driver.gripper import GripperError
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.sim.port import SimPortHandler
@@ -450,6 +452,203 @@ def test_a_gripper_goal_beyond_its_current_limit_is_refused(h: NodeHarness) -> N
     assert (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current')) == before
 
 
+def parallel_client(h: NodeHarness, action: str = 'parallel_gripper_cmd') -> ActionClient:
+    assert h.client is not None
+    client = ActionClient(h.client.node, ParallelGripperCommand,
+                          f'{h.namespace}/dxl_servo_driver/{action}')
+    assert client.wait_for_server(timeout_sec=10.0), f'no {action} server'
+    return client
+
+
+def parallel(position: Sequence[float], velocity: Sequence[float] = (),
+             effort: Sequence[float] = (), name: Sequence[str] = ('claw',)) -> Any:
+    """Return a ParallelGripperCommand goal as MoveIt fills it (arrays empty when not given)."""
+    goal = ParallelGripperCommand.Goal()
+    goal.command.name = list(name)
+    goal.command.position = [float(value) for value in position]
+    goal.command.velocity = [float(value) for value in velocity]
+    goal.command.effort = [float(value) for value in effort]
+    return goal
+
+
+def opened(h: NodeHarness, client: ActionClient) -> None:
+    """Open the claw and wait for it to be there."""
+    status, result = Goal(client, parallel([0.0])).result()
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
+    wait_until(lambda: abs(sim_rad(h, 'claw')) < 0.05, 10.0, 'the claw open')
+
+
+def still(h: NodeHarness, name: str, for_s: float) -> float:
+    """Wait until a joint's goal stays unchanged for for_s (nothing walks it on); return it."""
+    sid = IDS[name]
+    deadline = time.monotonic() + 10.0
+    goal = h.reg(sid, 'goal_position')
+    since = time.monotonic()
+    while time.monotonic() - since < for_s:
+        assert time.monotonic() < deadline, f'the goal of {name} never stayed put'
+        time.sleep(0.02)
+        now = h.reg(sid, 'goal_position')
+        if now != goal:
+            goal, since = now, time.monotonic()
+    return XM430_UNITS.position_to_rad(goal)
+
+
+def test_a_parallel_gripper_goal_stalls_on_an_object_and_then_opens(h: NodeHarness) -> None:
+    """A ParallelGripperCommand as MoveIt sends it closes onto an object, holds it, opens."""
+    client = parallel_client(h)
+    sid = IDS['claw']
+    max_effort = 0.3 * XM430_UNITS.torque_constant_nm_per_a   # N*m: 0.3 A on the XM430
+    h.sim.set_load(sid, 3.0)   # an object the claw cannot push through at 0.3 A
+    try:
+        goal = Goal(client, parallel([1.5], effort=[max_effort]))
+        status, result = goal.result()
+        state = result.state
+        print(f'stalled at {state.position} rad with {state.effort} N*m '
+              f'(effort {max_effort:.3f} N*m); {len(goal.feedback)} feedback')
+        assert status == GoalStatus.STATUS_SUCCEEDED
+        assert result.stalled and not result.reached_goal
+        assert list(state.name) == ['claw']
+        assert len(state.position) == len(state.velocity) == len(state.effort) == 1
+        assert state.position[0] < 1.5 - 0.05
+        assert abs(state.velocity[0]) < 0.2   # stopped
+        assert state.effort[0] == pytest.approx(max_effort, rel=0.3)
+        assert h.reg(sid, 'goal_current') == XM430_UNITS.current_from_a(0.3)
+        assert goal.feedback, 'no feedback'
+        assert all(list(msg.state.name) == ['claw'] for _, msg in goal.feedback)
+        # Held by what it grips, with the limited current: where it stopped, never the
+        # overload latch.
+        held = sim_rad(h, 'claw')
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            assert h.reg(sid, 'hardware_error_status') == 0
+            assert abs(sim_rad(h, 'claw') - held) < 0.05
+            time.sleep(0.05)
+    finally:
+        h.sim.set_load(sid, 0.0)
+    status, result = Goal(client, parallel([0.0], velocity=[2.0])).result()
+    assert status == GoalStatus.STATUS_SUCCEEDED
+    assert result.reached_goal and not result.stalled
+    assert abs(result.state.position[0]) <= 0.05
+    wait_until(lambda: abs(sim_rad(h, 'claw')) < 0.05, 10.0, 'the claw open')
+
+
+def test_a_parallel_gripper_goal_moves_no_faster_than_its_velocity(h: NodeHarness) -> None:
+    client = parallel_client(h, 'claw/parallel_gripper_cmd')
+    opened(h, client)
+    start = sim_rad(h, 'claw')
+    speed = 1.0
+    goal = Goal(client, parallel([1.2], velocity=[speed]))
+    ahead = -math.inf
+    while not goal.done:
+        rad = sim_rad(h, 'claw')
+        # Dated after the read, from before the goal was sent: the walk may only be later.
+        allowed = start + speed * (time.monotonic() - goal.sent_s)
+        ahead = max(ahead, rad - allowed)
+        time.sleep(0.01)
+    status, result = goal.result()
+    print(f'{goal.ended_s - goal.sent_s:.2f} s for 1.2 rad at {speed} rad/s; at most '
+          f'{ahead:+.3f} rad from the walk')
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
+    assert ahead < 0.05
+    assert goal.ended_s - goal.sent_s >= (1.2 - start - 0.05 - 0.05) / speed
+
+
+def test_a_canceled_parallel_gripper_goal_holds_where_it_is(h: NodeHarness) -> None:
+    client = parallel_client(h)
+    opened(h, client)
+    goal = Goal(client, parallel([1.5], velocity=[0.3]))
+    wait_until(lambda: sim_rad(h, 'claw') > 0.3, 10.0, 'the claw on its way')
+    goal.cancel()
+    status, result = goal.result()
+    assert status == GoalStatus.STATUS_CANCELED
+    assert not result.reached_goal and result.state.position[0] < 1.4
+    # Its goal is where it stopped, and nothing walks it on.
+    assert still(h, 'claw', 0.5) < 1.4
+
+
+def test_a_parallel_gripper_goal_is_preempted_by_the_next(h: NodeHarness) -> None:
+    client = parallel_client(h)
+    opened(h, client)
+    first = Goal(client, parallel([1.5], velocity=[0.3]))
+    wait_until(lambda: sim_rad(h, 'claw') > 0.2, 10.0, 'the claw on its way')
+    # The same joint through its own action name: one goal at a time per gripper.
+    second = Goal(parallel_client(h, 'claw/parallel_gripper_cmd'), parallel([0.0]))
+    assert first.result()[0] == GoalStatus.STATUS_ABORTED
+    status, result = second.result()
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
+    assert abs(still(h, 'claw', 0.3)) < 0.05
+
+
+class Unheard:
+    """A listener for goals that must be refused before anything is heard of them."""
+
+    feedback_period_s = 0.05
+
+    def feedback(self, sample: Any) -> None:
+        raise AssertionError(f'a refused goal had feedback {sample}')
+
+    def ended(self, outcome: Any) -> None:
+        raise AssertionError(f'a refused goal ended {outcome}')
+
+
+REFUSED_PARALLEL = [
+    (parallel([1.7]), 'beyond the travel'),
+    (parallel([-0.3], effort=[0.2]), 'beyond the travel'),
+    (parallel([0.5], name=['j1']), "the one joint of this action, 'claw'; got 'j1'"),
+    (parallel([0.5], name=['claw', 'claw']), 'the one joint of this action'),
+    (parallel([0.5], name=[]), 'got none'),
+    (parallel([]), 'one position'),
+    (parallel([math.nan]), 'not a finite number'),
+    (parallel([math.inf]), 'not a finite number'),
+    (parallel([0.5, 0.6]), 'one position'),
+    (parallel([0.5], velocity=[1.0, 1.0]), 'velocity must be empty or hold one value'),
+    (parallel([0.5], effort=[0.1, 0.1]), 'effort must be empty or hold one value'),
+    (parallel([0.5], velocity=[-1.0]), 'velocity -1.0 is not a finite speed'),
+    (parallel([0.5], effort=[math.nan]), 'effort nan is not a finite effort'),
+    (parallel([0.5], effort=[500.0]), 'above the current limit'),
+]
+
+
+def test_a_parallel_gripper_goal_that_cannot_be_done_is_refused(h: NodeHarness) -> None:
+    assert h.node is not None
+    sid = IDS['claw']
+    client = parallel_client(h)
+    before = (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_current'))
+    for goal, why in REFUSED_PARALLEL:
+        # The reason, as the log says it ...
+        with pytest.raises(GripperError, match=re.escape(why)):
+            h.node.arm.submit_parallel_gripper_goal('claw', goal.command, Unheard())
+        # ... and the action's answer: aborted at once, nothing written.
+        status, result = Goal(client, goal).result()
+        assert status == GoalStatus.STATUS_ABORTED, why
+        assert not result.reached_goal and not result.stalled
+    seen = h.joint_states.received
+    h.joint_states.wait(lambda _: h.joint_states.received >= seen + 5, timeout_s=10.0)
+    assert (h.reg(sid, 'goal_position'), h.reg(sid, 'goal_current')) == before
+
+
+def test_effort_is_refused_where_the_grippers_mode_has_no_current_control(
+        h: NodeHarness) -> None:
+    assert h.node is not None
+    sid = IDS['claw']
+    client = parallel_client(h)
+    assert h.call('set_operating_mode', name=['claw'], mode='position').success
+    try:
+        before = h.reg(sid, 'goal_position')
+        goal = parallel([0.5], effort=[0.2])
+        with pytest.raises(GripperError, match='command.effort 0.2 N.m needs current control: '
+                           "gripper 'claw' is in position mode, which has none"):
+            h.node.arm.submit_parallel_gripper_goal('claw', goal.command, Unheard())
+        status, _ = Goal(client, goal).result()
+        assert status == GoalStatus.STATUS_ABORTED
+        seen = h.joint_states.received
+        h.joint_states.wait(lambda _: h.joint_states.received >= seen + 5, timeout_s=10.0)
+        assert h.reg(sid, 'goal_position') == before
+    finally:
+        assert h.call('set_operating_mode', name=['claw'],
+                      mode='current_based_position').success
+
+
 def test_the_arm_example_takes_moveits_two_actions() -> None:
     """config/arm_sim.yaml, as `make run PARAMS=config/arm_sim.yaml` runs it."""
     import pathlib
@@ -490,9 +689,11 @@ def test_the_arm_example_takes_moveits_two_actions() -> None:
         horn = units_for(model_named('XL430-W250')).position_to_rad(
             h.reg(ids['wrist_roll'], 'present_position'))
         assert horn == pytest.approx(4.0, abs=0.06)
-        status, result = Goal(gripper_client(h), grip(1.0)).result()
+        # The gripper as config/moveit's controller drives it: <node>/<joint>/<action_ns>.
+        status, result = Goal(parallel_client(h, 'gripper/parallel_gripper_cmd'),
+                              parallel([1.0], name=['gripper'])).result()
         assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
-        assert result.position == pytest.approx(1.0, abs=0.03)
+        assert result.state.position[0] == pytest.approx(1.0, abs=0.03)
         # Reached on the way in; the XL330 overshoots (0.09-0.17 rad seen) before it settles:
         # it must settle there, not be at one moment read after the result.
         wait_until(lambda: abs(joint_rad('gripper') - 1.0) < 0.03, 10.0, 'the gripper settled')
