@@ -284,10 +284,10 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
 REGISTER_FAMILIES: Tuple[Tuple[str, str], ...] = (
     ('registers', 'any writable control-table item by its snake_case name, raw units '
      '(`profile_velocity`, `position_p_gain`, `return_delay_time`, `max_position_limit`, ...), '
-     'applied at configure to the joint\'s servo, and to its second servo too '
+     "applied at configure to the joint's servo, and to its second servo too "
      '(`secondary_id`); EEPROM items only where the servo differs, with torque off, then read '
      'back'),
-    ('secondary_registers', 'the second servo\'s own value of an item, in place of the '
+    ('secondary_registers', "the second servo's own value of an item, in place of the "
      "joint's `registers.<name>` (e.g. `drive_mode: 1`, a shadow reversed in firmware, "
      'beside a joint whose registers set `drive_mode: 4`); judged with the rest of what the '
      'second servo gets. Only with `<joint>.secondary_id` set.'),

@@ -84,8 +84,7 @@ def time_based(model: Model, drive_mode: int | None) -> bool:
 
 
 def _profile_role(model: Model, name: str) -> str:
-    """Return 'profile_velocity'/'profile_acceleration' where a time-based profile may count
-    them in ms on this model, else ''."""
+    """Return the profile register name is, where a time-based profile may count it in ms."""
     role = model.role_of(name)
     return role if model.time_profile_bit is not None and role in PROFILE_REGISTERS else ''
 
