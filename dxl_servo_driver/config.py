@@ -226,7 +226,10 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
               'every goal in the same sync write, is configured, enabled, switched and disabled '
               'with the first, and is watched against it. -1: none.', '', -1, MAX_ID),
     ParamSpec('secondary_reverse', bool, False,
-              'The second servo turns against the joint (mounted mirrored).',
+              "The second servo's Present Position counts against the joint's (mounted "
+              'mirrored, its Drive Mode not reversing it). A mirrored servo whose Drive Mode '
+              'bit 0 reverses it in firmware (`secondary_registers.drive_mode: 1`, as '
+              "Interbotix's shadows) already counts with the joint: leave this false.",
               only_for='secondary_id'),
     ParamSpec('secondary_offset', float, None,
               "The joint's 0 in the second servo's radians.", 'rad', -1e4, 1e4,
@@ -276,6 +279,19 @@ JOINT_PARAMS: Tuple[ParamSpec, ...] = (
     ParamSpec('follow_closed', float, None, "The leader gripper's gripper_closed (see "
               'follow_open).', 'rad (m)', only_for='gripper', shown="this joint's gripper_closed"),
 )
+# `<joint>.<family>.<name>`: the open families of raw register values, judged against the
+# servo's control table (their rows of docs/parameters.md, tools/param_table.py).
+REGISTER_FAMILIES: Tuple[Tuple[str, str], ...] = (
+    ('registers', 'any writable control-table item by its snake_case name, raw units '
+     '(`profile_velocity`, `position_p_gain`, `return_delay_time`, `max_position_limit`, ...), '
+     "applied at configure to the joint's servo, and to its second servo too "
+     '(`secondary_id`); EEPROM items only where the servo differs, with torque off, then read '
+     'back'),
+    ('secondary_registers', "the second servo's own value of an item, in place of the "
+     "joint's `registers.<name>` (e.g. `drive_mode: 1`, a shadow reversed in firmware, "
+     'beside a joint whose registers set `drive_mode: 4`); judged with the rest of what the '
+     'second servo gets. Only with `<joint>.secondary_id` set.'),
+)
 JOINT_PARAMS_BY_NAME: Dict[str, ParamSpec] = {spec.name: spec for spec in JOINT_PARAMS}
 JOINT_KEYS: Tuple[str, ...] = tuple(JOINT_PARAMS_BY_NAME)
 # Parameters every rclpy node has.
@@ -315,6 +331,8 @@ class JointConfig:
     secondary_reverse: bool = False
     secondary_offset: Optional[float] = None
     secondary_tolerance: float = 0.1
+    # The second servo's own register values, in place of the joint's (`secondary_registers`).
+    secondary_registers: Tuple[Tuple[str, int], ...] = ()
     # Set on the secondary's own configuration: the joint it belongs to.
     secondary_of: str = ''
     # The protocol its servo speaks (resolved: the joint's, else its model's, else the bus's).
@@ -344,14 +362,24 @@ class JointConfig:
         """Return the configuration of the joint's second servo (secondary_id must be set)."""
         assert self.secondary_id is not None
         offset = self.offset if self.secondary_offset is None else self.secondary_offset
+        own = dict(self.registers)
+        own.update(self.secondary_registers)
         return dataclasses.replace(
             self, name=f'{self.name} (secondary)', servo_id=self.secondary_id,
             offset=offset, reverse=self.secondary_reverse, gripper=False, secondary_id=None,
-            secondary_of=self.name)
+            secondary_of=self.name, registers=tuple(sorted(own.items())))
 
     def register_dict(self) -> Dict[str, int]:
         """Return the configured registers as a dictionary."""
         return dict(self.registers)
+
+    def register_key(self, register: str) -> str:
+        """Return the parameter that sets a register of this servo (for error messages)."""
+        if self.secondary_of:
+            family = ('secondary_registers' if register in dict(self.secondary_registers)
+                      else 'registers')
+            return f'{self.secondary_of}.{family}.{register}'
+        return f'{self.name}.registers.{register}'
 
     def position_limits(self) -> Tuple[Optional[float], Optional[float]]:
         """
@@ -523,10 +551,12 @@ def validate(params: Mapping[str, Any]) -> DriverConfig:
                                   f'{ids[servo_id]!r}')
             ids[servo_id] = name
         if joint.secondary_id is None:
+            given = [key for key in params if key.startswith(f'{name}.secondary_registers.')]
             for key in ('secondary_reverse', 'secondary_offset', 'secondary_tolerance'):
                 if f'{name}.{key}' in params:
-                    raise ConfigError(f'{name}.{key}', f'only a joint with a {name}.secondary_id '
-                                      'has this')
+                    given.insert(0, f'{name}.{key}')
+            if given:
+                raise ConfigError(given[0], f'only a joint with a {name}.secondary_id has this')
         elif joint.gripper:
             raise ConfigError(f'{name}.secondary_id', 'a gripper has one servo')
         joints.append(joint)
@@ -541,10 +571,12 @@ def _reject_unknown_keys(params: Mapping[str, Any], joint_names: set) -> None:
         if head not in joint_names:
             raise ConfigError(key, 'unknown parameter (not a driver parameter, and '
                               f'{head!r} is not in joints)')
-        if rest in JOINT_KEYS or rest.startswith('registers.'):
+        if rest in JOINT_KEYS or any(rest.startswith(f'{family}.')
+                                     for family, _ in REGISTER_FAMILIES):
             continue
         raise ConfigError(key, f'unknown joint parameter {rest!r} (expected one of '
-                          f'{list(JOINT_KEYS)} or registers.<name>)')
+                          f'{list(JOINT_KEYS)}, registers.<name> or '
+                          'secondary_registers.<name>)')
 
 
 def _joint_value(params: Mapping[str, Any], name: str, key: str) -> Any:
@@ -587,17 +619,20 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
     if gripper and ends[0] == ends[1]:
         raise ConfigError(f'{name}.gripper_closed', f'equals gripper_open ({ends[0]:g}): a '
                           'gripper needs its travel (gripper_open .. gripper_closed, joint units)')
-    prefix = f'{name}.registers.'
-    registers = []
-    for key in sorted(k for k in params if k.startswith(prefix)):
-        register = key[len(prefix):]
-        value = _check_type(key, params[key], int)
-        registers.append((register, value))
+    registers = _register_values(params, f'{name}.registers.')
     joint = JointConfig(name, servo_id, mode, torque_constant, tuple(registers), wanted,
                         gripper, ends[0], ends[1], _joint_value(params, name, 'path_tolerance'),
                         _joint_value(params, name, 'goal_tolerance'),
                         *_frame_and_limits(params, name, registers),
                         *_secondary(params, name))
+    own = _register_values(params, f'{name}.secondary_registers.')
+    joint = dataclasses.replace(joint, secondary_registers=tuple(own))
+    limits = [register for register, _ in own
+              if register in ('min_position_limit', 'max_position_limit')]
+    if limits and (joint.min_position is not None or joint.max_position is not None):
+        raise ConfigError(f'{name}.secondary_registers.{limits[0]}', 'give the limits once: '
+                          f'{name}.min_position/max_position (joint units) set them for both '
+                          'servos, each through its own frame')
     joint = _torque_and_trigger(params, joint, wanted)
     joint = dataclasses.replace(joint, **_follow(params, name, gripper, ends))
     low, high = joint.position_limits()
@@ -607,8 +642,20 @@ def _joint(params: Mapping[str, Any], name: str) -> JointConfig:
                           f'{joint.gripper_closed:g} (gripper_open..gripper_closed)')
     # Without a model the XM430 manual's table judges the file now (a register only other
     # models have is judged at configure, against the model the servo answers with).
-    _check_registers(joint, wanted or models.model_for(xm430.MODEL_NUMBER), lenient=wanted is None)
+    table = wanted or models.model_for(xm430.MODEL_NUMBER)
+    _check_registers(joint, table, lenient=wanted is None)
+    if joint.secondary_id is not None:
+        # What the second servo gets: the joint's registers, its own in their place.
+        _check_registers(joint.secondary(), table, lenient=wanted is None)
     return joint
+
+
+def _register_values(params: Mapping[str, Any], prefix: str) -> List[Tuple[str, int]]:
+    """Return the (register, raw value) pairs of the keys under prefix, sorted by name."""
+    values = []
+    for key in sorted(k for k in params if k.startswith(prefix)):
+        values.append((key[len(prefix):], _check_type(key, params[key], int)))
+    return values
 
 
 def _follow(params: Mapping[str, Any], name: str, gripper: bool,
@@ -763,27 +810,32 @@ def _check_registers(joint: JointConfig, table: models.Model, lenient: bool = Fa
     values = {item.name: item.initial for item in table.items}
     checked = {}
     for register, value in joint.registers:
-        key = f'{joint.name}.registers.{register}'
+        key = joint.register_key(register)
         if lenient and not table.has(register) and any(
                 other.has(register) for other in models.ALL_MODELS):
             continue
         try:
             item = registers.writable_register(table, register)
-            registers.check_range(item, value)
+            registers.check_range(item, value, table)
         except ValueError as exc:
-            raise ConfigError(key, str(exc)) from None
+            whose = (f'on the second servo (id {joint.servo_id}): ' if joint.secondary_of
+                     else '')
+            raise ConfigError(key, whose + str(exc)) from None
         checked[register] = value
     # Values bounded by another register must respect it, as the servo would refuse them (data
     # limit error) at configure: the rules of registers.check_register_set, against the file's
     # values where it sets them and the table's initial values elsewhere.
     values.update(checked)
-    # The lower bound of a crossed pair is named (min_position_limit, not max_...).
-    for register in sorted(checked, key=lambda r: r.startswith('max_')):
+    # The lower bound of a crossed pair is named (min_position_limit, not max_...), and a
+    # profile register rather than the Drive Mode that says what it counts.
+    for register in sorted(checked, key=lambda r: (r.startswith('max_'), r == 'drive_mode')):
         try:
             registers.check_register_set(table, values, register, checked[register],
                                          joint.operating_mode)
         except ValueError as exc:
-            raise ConfigError(f'{joint.name}.registers.{register}', str(exc)) from None
+            whose = (f'on the second servo (id {joint.servo_id}): ' if joint.secondary_of
+                     else '')
+            raise ConfigError(joint.register_key(register), whose + str(exc)) from None
 
 
 def describe_register(joint: JointConfig, register: str) -> models.Item:

@@ -67,6 +67,27 @@ _BOUNDED_BY = {'profile_velocity': 'velocity_limit', 'profile_acceleration': 'ac
 _ORDERED = (('min_position_limit', 'max_position_limit'),
             ('min_voltage_limit', 'max_voltage_limit'))
 
+# A time-based profile (Drive Mode's time_profile_bit, the e-manual's Profile Configuration):
+# Profile Velocity is the time of the whole move and Profile Acceleration the time it
+# accelerates, both in ms, 0..32,767 (the e-manual's tables print 32,737 for the time-based
+# range, beside 32,767 for the same register velocity-based: the register's range is taken),
+# and the acceleration may not exceed half the move. Neither is bounded by Velocity Limit or
+# Acceleration Limit then: they are times, not speeds.
+PROFILE_REGISTERS = ('profile_velocity', 'profile_acceleration')
+TIME_PROFILE_MAX_MS = 32_767
+
+
+def time_based(model: Model, drive_mode: int | None) -> bool:
+    """Return whether this Drive Mode value makes the model's profiles times (ms)."""
+    bit = model.time_profile_bit
+    return bit is not None and drive_mode is not None and bool(drive_mode >> bit & 1)
+
+
+def _profile_role(model: Model, name: str) -> str:
+    """Return the profile register name is, where a time-based profile may count it in ms."""
+    role = model.role_of(name)
+    return role if model.time_profile_bit is not None and role in PROFILE_REGISTERS else ''
+
 
 def related_registers(model: Model, name: str) -> tuple[str, ...]:
     """Return the registers whose values check_register_set needs to judge a write of name."""
@@ -78,7 +99,55 @@ def related_registers(model: Model, name: str) -> tuple[str, ...]:
             related.append(high)
         elif name == high:
             related.append(low)
+    if _profile_role(model, name):
+        # The Drive Mode says what they count; the other one of the pair, the half rule.
+        other = [each for each in PROFILE_REGISTERS if each != name]
+        related += ['drive_mode', *other]
+    elif name == 'drive_mode' and model.time_profile_bit is not None:
+        # Bit 2 changes what the profile registers count: they are judged again.
+        related += [each for each in (*PROFILE_REGISTERS, 'velocity_limit', 'acceleration_limit')
+                    if model.has(each)]
     return tuple(related)
+
+
+def _check_profile(model: Model, values: Mapping[str, int], name: str, value: int) -> None:
+    """
+    Raise ValueError when a write leaves the profile registers wrong for what they count.
+
+    name is profile_velocity, profile_acceleration or drive_mode (its bit 2 changes their
+    meaning: both are judged again); values holds the others (related_registers).
+    """
+    new = {**values, name: value}
+    drive_mode = new.get('drive_mode')
+    timed = time_based(model, drive_mode)
+    judged = PROFILE_REGISTERS if name == 'drive_mode' else (name,)
+    because = f' (drive_mode {drive_mode} sets bit {model.time_profile_bit}' if timed else (
+        f' (drive_mode {drive_mode}: a velocity-based profile' if drive_mode is not None
+        else ' (a velocity-based profile')
+    for register in judged:
+        if register not in new or not model.has(register):
+            continue
+        amount = new[register]
+        if timed:
+            if not 0 <= amount <= TIME_PROFILE_MAX_MS:
+                raise ValueError(f'{register} {amount} is outside the range of a time-based '
+                                 f'profile: 0..{TIME_PROFILE_MAX_MS} ms{because})')
+            continue
+        item = model.item(register)
+        if not item.minimum <= amount <= item.maximum:
+            unit = f' {item.unit}' if item.unit else ''
+            raise ValueError(f'{amount} is outside the range of {register}: '
+                             f'{item.minimum}..{item.maximum}{unit}{because}; drive_mode bit '
+                             f'{model.time_profile_bit} makes it a time, 0..'
+                             f'{TIME_PROFILE_MAX_MS} ms)')
+        bound = _BOUNDED_BY[register]
+        if bound in new and amount > new[bound]:
+            raise ValueError(f'{register} {amount} exceeds {bound} ({new[bound]}){because})')
+    total, rise = new.get('profile_velocity'), new.get('profile_acceleration')
+    if timed and total and rise is not None and 2 * rise > total:
+        raise ValueError(f'profile_acceleration {rise} ms is more than half of '
+                         f'profile_velocity {total} ms: a time-based profile accelerates for '
+                         'at most half of its time (the e-manual)')
 
 
 def check_register_set(model: Model, values: Mapping[str, int], name: str, value: int,
@@ -91,9 +160,12 @@ def check_register_set(model: Model, values: Mapping[str, int], name: str, value
     and write_register. A bound the model does not have (no acceleration_limit outside the
     XM430 manual's models) is not checked.
     """
-    bound = _BOUNDED_BY.get(name)
-    if bound is not None and bound in values and abs(value) > values[bound]:
-        raise ValueError(f'{name} {value} exceeds {bound} ({values[bound]})')
+    if _profile_role(model, name) or (name == 'drive_mode' and model.time_profile_bit is not None):
+        _check_profile(model, values, model.role_of(name), value)
+    else:
+        bound = _BOUNDED_BY.get(name)
+        if bound is not None and bound in values and abs(value) > values[bound]:
+            raise ValueError(f'{name} {value} exceeds {bound} ({values[bound]})')
     for low, high in _ORDERED:
         if low not in values or high not in values:
             continue
@@ -108,9 +180,19 @@ def check_register_set(model: Model, values: Mapping[str, int], name: str, value
                          f'{model.name} manual); use extended_position for larger offsets')
 
 
-def check_range(item: Item, value: int) -> None:
-    """Raise ValueError when a raw value is outside the item's static range."""
-    if not item.minimum <= value <= item.maximum:
-        unit = f' {item.unit}' if item.unit else ''
+def check_range(item: Item, value: int, model: Model | None = None) -> None:
+    """
+    Raise ValueError when a raw value is outside the item's static range.
+
+    Given the model, a profile register that a time-based profile may count in ms is judged
+    against the wider of its two ranges here; check_register_set judges it against the one
+    its Drive Mode gives.
+    """
+    low, high = item.minimum, item.maximum
+    unit = f' {item.unit}' if item.unit else ''
+    if model is not None and _profile_role(model, item.name):
+        high = max(high, TIME_PROFILE_MAX_MS)
+        unit = f' ({item.unit or "raw"}, or ms in a time-based profile)'
+    if not low <= value <= high:
         raise ValueError(f'{value} is outside the range of {item.name}: '
-                         f'{item.minimum}..{item.maximum}{unit}')
+                         f'{low}..{high}{unit}')

@@ -12,18 +12,13 @@ from typing import List
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
-from dxl_servo_driver.config import JOINT_PARAMS, PARAMS, ParamSpec  # noqa: E402 - path set-up
+from dxl_servo_driver.config import (  # noqa: E402 - path set-up
+    JOINT_PARAMS, PARAMS, ParamSpec, REGISTER_FAMILIES)
 
 # The page that shows the tables, from the repository's root.
 PAGE = 'docs/parameters.md'
 
 _KINDS = {'list': 'string[]', 'float': 'double', 'str': 'string'}
-# The open family of joint parameters, judged against the servo's control table.
-REGISTERS_ROW = (
-    '| `<joint>.registers.<name>` | int | | | | any writable control-table item by its '
-    'snake_case name, raw units (`profile_velocity`, `position_p_gain`, `return_delay_time`, '
-    '`max_position_limit`, ...), applied at configure; EEPROM items only where the servo '
-    'differs, with torque off, then read back |')
 
 
 def _row(spec: ParamSpec, name: str) -> str:
@@ -54,7 +49,8 @@ def rows() -> List[str]:
               '|---|---|---|---|---|---|']
     lines = header + [_row(spec, spec.name) for spec in PARAMS]
     lines += [''] + header + [_row(spec, f'<joint>.{spec.name}') for spec in JOINT_PARAMS]
-    lines.append(REGISTERS_ROW)
+    lines += [f'| `<joint>.{family}.<name>` | int | | | | {text} |'
+              for family, text in REGISTER_FAMILIES]
     return lines
 
 

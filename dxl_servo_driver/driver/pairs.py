@@ -9,6 +9,14 @@ sign wrong in the file would have the servos fight each other through the joint.
 stays off (every trajectory and goal on it ends: manager.joint_trouble) until torque is enabled
 again on it.
 
+A second servo reversed in firmware (Drive Mode bit 0, its own `secondary_registers`, as
+Interbotix's shadows) needs nothing here: its Goal and Present Position count the other way round
+its horn (the e-manual), so mounted mirrored it counts the joint's way; with secondary_reverse
+false its frame takes the same goals as the first servo's and its Present Position compares as
+it reads (test/driver/test_interbotix.py: its horn mirrored, the two registers equal, the gap
+near 0). With secondary_reverse as well it would be mirrored twice, sent against the joint and
+switched off by the check below as soon as the two part by twice the tolerance.
+
 Why not the X series' Secondary ID register (12): a follower answers nothing and mirrors the
 primary's packet as it is, so the driver could neither confirm a write reached it, nor give it
 its own offset, nor read it to compare; a second servo of our own is read, written and watched

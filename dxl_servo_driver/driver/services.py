@@ -243,7 +243,8 @@ class Services:
             item = _register(servo.model, register)
             try:
                 registers.writable_register(servo.model, item.name, runtime=True)
-                registers.check_range(item, value)
+                # A profile register's range is the Drive Mode's: judged below, once read.
+                registers.check_range(item, value, servo.model)
             except ValueError as exc:
                 return Result(False, str(exc))
             undriven = servo.joint.refusal()

@@ -9,7 +9,7 @@ Present Position are kept in the joint's turn offset. The long activities are st
 (generators, one transaction between two yields) that tasks.py or a synchronous caller runs.
 """
 
-from typing import Any, Dict, Generator, List, Optional
+from typing import Any, Dict, Generator, List, Optional, Tuple
 
 from dxl_servo_driver import models
 from dxl_servo_driver import state_block
@@ -113,6 +113,8 @@ class Setup:
         wanted = mode_registers(servo, servo.mode)
         wanted.update(servo.joint.register_dict())
         wanted.update(position_limit_registers(servo))
+        for note in position_limit_notes(servo):
+            self._log.info(note)
         changed = []
         for name, value in wanted.items():
             if servo.model.item(name).area != 'eeprom':
@@ -458,12 +460,29 @@ def position_limit_registers(servo: Servo, mode: str = '') -> Dict[str, int]:
     refuses goals beyond them), and only the ends the configuration gives. ManagerError when an
     end is beyond what the mode can reach.
     """
+    return {register: raw for register, raw, _ in _position_limits(servo, mode)}
+
+
+def position_limit_notes(servo: Servo) -> List[str]:
+    """Return what the log says of a joint limit taken as the servo's end (one tick beyond)."""
+    return [note for _, _, note in _position_limits(servo) if note]
+
+
+def _position_limits(servo: Servo, mode: str = '') -> List[Tuple[str, int, str]]:
+    """
+    Return (register, raw, note) for position_limit_registers; ManagerError beyond reach.
+
+    A joint limit within one tick beyond the register's range is that end of the range (the
+    note says so): a full-turn joint's URDF limit of +-pi is raw 0 and 4096 through the frame,
+    and 4096 is the same place as 4095 within the tick the servo can tell apart, which is how
+    the official stacks take it. Farther is refused.
+    """
     joint = servo.joint
     if (mode or servo.mode) not in modes.SINGLE_TURN:
-        return {}
+        return []
     if joint.min_position is None and joint.max_position is None:
-        return {}
-    ends = {}
+        return []
+    ends = []
     # A reversed joint's lowest position is the servo's highest.
     for key, value in (('min_position', joint.min_position), ('max_position', joint.max_position)):
         if value is None:
@@ -472,10 +491,16 @@ def position_limit_registers(servo: Servo, mode: str = '') -> Dict[str, int]:
         register = ('min_position_limit' if (key == 'min_position') != joint.reverse
                     else 'max_position_limit')
         item = servo.model.item(register)
-        if not item.minimum <= raw <= item.maximum:
+        note = ''
+        end = min(max(raw, item.minimum), item.maximum)
+        if abs(raw - end) == 1:
+            note = (f'joint {joint.name!r}: {key} {value:g} is servo position {raw}, one tick '
+                    f'beyond the {item.minimum}..{item.maximum} of {register}: taken as its '
+                    f'end, {end}')
+        elif raw != end:
             raise ManagerError(
                 f'joint {joint.name!r}: {key} {value:g} is servo position {raw}, beyond the '
                 f'{item.minimum}..{item.maximum} of {register} ({mode or servo.mode} mode turns '
                 'once)')
-        ends[register] = raw
+        ends.append((register, end, note))
     return ends

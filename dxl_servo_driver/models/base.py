@@ -183,6 +183,10 @@ class Model:
     # Max/Min Voltage Limit's unit where it is not voltage_unit_v (Present Input Voltage's):
     # the Y reads its input in 0.01 V and limits it in 0.1 V. None: the same unit.
     limit_voltage_unit_v: float | None = None
+    # The Drive Mode bit that makes Profile Velocity and Profile Acceleration times in ms
+    # (bit 2 on the X, the MX(2.0), the P and PRO(A): the e-manual's time-based profile);
+    # None where there is none (the Y times its profiles in registers of their own).
+    time_profile_bit: int | None = None
     _by_name: dict[str, Item] = field(
         init=False, repr=False, compare=False, hash=False, default_factory=dict)
     _by_address: dict[int, Item] = field(
@@ -201,6 +205,11 @@ class Model:
         if self.min_firmware:
             text += f', firmware {self.min_firmware}+'
         return text + ')'
+
+    @property
+    def reverse_bit(self) -> int | None:
+        """Return the Drive Mode bit that reverses the direction (bit 0), None: no Drive Mode."""
+        return 0 if self.has('drive_mode') else None
 
     def has_fast_sync_read(self, firmware: int) -> bool:
         """Return whether this model at this firmware answers Fast Sync Read (0x8A)."""

@@ -57,6 +57,7 @@ X330_NEW_INDIRECT_FIRMWARE = 53
 
 GAIN_MAX = 16_383          # e-manual gain range (the manual allows 0..32,767, kept for 1020/1030)
 PROFILE_MAX = 32_767       # e-manual: time-based profiles count milliseconds up to this
+TIME_PROFILE_BIT = 2       # Drive Mode bit 2: time-based profile (firmware v42 on)
 LAST_RAM_X = xm430.TABLE_SIZE - 1
 
 
@@ -221,7 +222,8 @@ def _model(number: int, name: str, family: _Family, tuning: _Tuning, physics: Ph
         velocity_unit_rpm=0.229, pulses_per_rev=4096, position_zero_raw=2048,
         pwm_full_raw=885, voltage_unit_v=0.1, indirect=pairs,
         hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
-        min_firmware=min_firmware, fast_sync_read_firmware=family.fast_sync_read_firmware)
+        min_firmware=min_firmware, fast_sync_read_firmware=family.fast_sync_read_firmware,
+        time_profile_bit=TIME_PROFILE_BIT)
 
 
 def _manual_model(number: int, name: str, physics: Physics) -> Model:
@@ -235,7 +237,7 @@ def _manual_model(number: int, name: str, physics: Physics) -> Model:
         load_unit_ratio=None, velocity_unit_rpm=0.229, pulses_per_rev=4096,
         position_zero_raw=2048, pwm_full_raw=885, voltage_unit_v=0.1, indirect=pairs,
         hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
-        fast_sync_read_firmware=FAST_SYNC_X)
+        fast_sync_read_firmware=FAST_SYNC_X, time_profile_bit=TIME_PROFILE_BIT)
 
 
 def _x330(number: int, name: str, tuning: _Tuning, physics: Physics) -> tuple[Model, Model]:

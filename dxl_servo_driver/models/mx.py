@@ -86,7 +86,7 @@ def _model(number: int, name: str, velocity_limit: int, current_limit: int | Non
         velocity_unit_rpm=0.229, pulses_per_rev=4096, position_zero_raw=2048,
         pwm_full_raw=885, voltage_unit_v=0.1, indirect=xm430.INDIRECT_PAIRS,
         hardware_error_bits=dict(xm430.HARDWARE_ERROR_BITS), physics=physics,
-        fast_sync_read_firmware=None)
+        fast_sync_read_firmware=None, time_profile_bit=2)
 
 
 _SPEC = 'ROBOTIS e-manual {} specifications'

@@ -193,7 +193,9 @@ def _model(number: int, name: str, family: str, items: tuple[Item, ...],
         # Profile Acceleration counts 1 rev/min^2; Goal Position in the multi-turn modes takes
         # the whole int32; the e-manual states no position-mode limit on the Homing Offset.
         acceleration_unit_rpm2=1.0, extended_position_limit=INT32_MAX,
-        homing_position_mode_limit=None)
+        homing_position_mode_limit=None,
+        # Drive Mode bit 2: a time-based profile (where the table has a Drive Mode).
+        time_profile_bit=2 if any(each.name == 'drive_mode' for each in items) else None)
 
 
 # The datasheets publish continuous (rated) torque and current, not stall figures: those

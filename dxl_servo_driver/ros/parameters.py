@@ -71,13 +71,17 @@ def declare(node: Node, config: cfg.DriverConfig) -> None:
             value = values[spec.name]
             if value is not None:   # else a value only the servo gives: declared once known
                 _redeclare(node, f'{joint.name}.{spec.name}', value, descriptor(spec))
-        for register, value in joint.registers:
-            item = cfg.describe_register(joint, register)
-            _redeclare(node, f'{joint.name}.registers.{register}', value, ParameterDescriptor(
-                description=f'{item.description} at address {item.address}, raw '
-                            f'[{item.unit or "count"}], {item.minimum}..{item.maximum}, '
-                            f'{item.area.upper()}; applied at configure.' + AT_CONFIGURE,
-                type=ParameterType.PARAMETER_INTEGER))
+        for family, given in (('registers', joint.registers),
+                              ('secondary_registers', joint.secondary_registers)):
+            whose = ' to the second servo' if family == 'secondary_registers' else ''
+            for register, value in given:
+                item = cfg.describe_register(joint, register)
+                _redeclare(node, f'{joint.name}.{family}.{register}', value, ParameterDescriptor(
+                    description=f'{item.description} at address {item.address}, raw '
+                                f'[{item.unit or "count"}], {item.minimum}..{item.maximum}, '
+                                f'{item.area.upper()}; applied at configure{whose}.'
+                                + AT_CONFIGURE,
+                    type=ParameterType.PARAMETER_INTEGER))
 
 
 def show_from_servos(node: Node, values: Mapping[str, Any]) -> None:

@@ -60,6 +60,19 @@ velocity_profile.py):
   positions given in servo radians are turned into horn pulses through Present Position as it
   is counted when they are given (its turns and the Homing Offset).
 
+* Drive Mode (drive_mode_bits): bit 0 (reverse) mirrors the servo's whole register frame
+  against the horn: the dynamics run in the frame the registers count in (horn_position_pulse
+  is the encoder's count in the present direction, every goal, present value, trajectory,
+  limit, hand and stop in it), and physical_position_pulse is the horn as an unreversed servo
+  would count it; a write of the bit flips the frame (torque is off then: EEPROM). The
+  e-manual names Goal and Present Position as reversed on the X430 and Position, Velocity,
+  Current and PWM on the X540/XW/MX(2.0): a servo counting its position one way and its
+  velocity the other would contradict its own profile, so every signed value turns with the
+  position here. The MX-106's and EX-106+'s Protocol 1.0 exception (no reverse in wheel mode) is
+  not modelled. Bit 2 (time-based profile) makes Profile Velocity the time of a move and
+  Profile Acceleration its acceleration time, in ms (velocity_profile.plan_timed; in velocity
+  mode the goal is reached in Profile Acceleration ms).
+
 One span of advance() (_run) is the motor, gearbox and overload timer of every mode, and one
 small controller per operating mode (_PositionControl for the three position modes,
 _VelocityControl, _CurrentControl, _PwmControl; _Free with torque off) gives the output each
@@ -77,8 +90,8 @@ from dxl_servo_driver.models.xm430 import INT32_MAX, INT32_MIN
 from dxl_servo_driver.sim import motor
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, table_for
 from dxl_servo_driver.sim.velocity_profile import (
-    plan_position, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ProfileUnits,
-    ramp_velocity, X_UNITS)
+    plan_position, plan_timed, PositionProfile, PROFILE_STEP, PROFILE_TRAPEZOIDAL, ProfileUnits,
+    ramp_timed, ramp_velocity, X_UNITS)
 
 CONTROL_PERIOD_S = 0.001
 _PERIOD_MS = CONTROL_PERIOD_S * 1000.0
@@ -431,7 +444,7 @@ class _VelocityControl:
     """Velocity mode: a PI on the speed, its target ramped by Profile Acceleration."""
 
     __slots__ = ('_kvp', '_kvi', '_goal', '_acceleration_raw', '_units', '_unit_per_rad_s',
-                 '_out_limit', '_full', 'integral', 'target')
+                 '_out_limit', '_full', '_timed_rate', 'integral', 'target')
 
     def __init__(self, dynamics: 'ServoDynamics', get: Callable[[str], int], out_limit: float,
                  full: float) -> None:
@@ -440,6 +453,8 @@ class _VelocityControl:
         self._kvi = get('velocity_i_gain') / 65536.0 * beta * dynamics._kvi
         self._goal = float(get('goal_velocity'))
         self._acceleration_raw = get('profile_acceleration')
+        # A time-based profile: the rate its goal was given (None: velocity-based).
+        self._timed_rate = dynamics._vel_rate_raw_ms
         self._units = dynamics._profile_units
         self._unit_per_rad_s = dynamics._velocity_unit_per_rad_s
         self._out_limit = out_limit
@@ -451,8 +466,11 @@ class _VelocityControl:
         """Ramp the target one period; return the PI output."""
         changing = False
         if self.target != self._goal:
-            self.target = ramp_velocity(self.target, self._goal, self._acceleration_raw,
-                                        _PERIOD_MS, self._units)
+            if self._timed_rate is None:
+                self.target = ramp_velocity(self.target, self._goal, self._acceleration_raw,
+                                            _PERIOD_MS, self._units)
+            else:
+                self.target = ramp_timed(self.target, self._goal, self._timed_rate, _PERIOD_MS)
             changing = True
         out_limit = self._out_limit
         error = self.target - omega * self._unit_per_rad_s
@@ -544,6 +562,13 @@ class ServoDynamics:
         self._hand_left_pulse = 0.0
         self._hand_sign = 1.0
         self._hand_step_pulse = 0.0
+        # Drive Mode: the frame's direction against the horn (-1: reversed, bit 0) and what
+        # makes profiles times (bit 2); their bits on this model (None: it has no such bit).
+        self._direction = 1.0
+        self._reverse_bit = model.reverse_bit
+        self._time_bit = model.time_profile_bit
+        # Velocity mode, time-based: the rate (velocity units per ms) of the last goal.
+        self._vel_rate_raw_ms: Optional[float] = None
         # The mechanical end stops, in horn pulses (+-inf: none).
         self.stop_low_pulse = -math.inf
         self.stop_high_pulse = math.inf
@@ -554,6 +579,11 @@ class ServoDynamics:
     def motor_torque_nm(self) -> float:
         """Electromagnetic torque at the horn (before friction and load)."""
         return self.motor.torque_constant_nm_a * self.current_a
+
+    @property
+    def physical_position_pulse(self) -> float:
+        """Return the horn's position as the servo counts it unreversed (Drive Mode bit 0 0)."""
+        return self._direction * self.horn_position_pulse
 
     @property
     def hand_turning(self) -> bool:
@@ -649,6 +679,7 @@ class ServoDynamics:
         self._traj_acc_pulse_ms2 = 0.0
         self._target_pulse = self.horn_position_pulse
         self._vel_traj_raw = 0.0
+        self._vel_rate_raw_ms = None
 
     def on_torque(self, enabled: bool, regs: RegisterStore) -> None:
         """Torque enable changed: restart the controllers from the present state."""
@@ -676,9 +707,13 @@ class ServoDynamics:
             goal = min(max(goal, low), high) if low <= high else goal
         homing = _homing_offset(regs, self._homing_ignored)
         goal_pulse = float(goal - self._turn_offset_pulse - homing)
-        profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
-                                regs.get('profile_velocity'), regs.get('profile_acceleration'),
-                                self._profile_units)
+        if self._timed(regs):
+            profile = plan_timed(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
+                                 regs.get('profile_velocity'), regs.get('profile_acceleration'))
+        else:
+            profile = plan_position(self._traj_pulse, self._traj_vel_pulse_ms, goal_pulse,
+                                    regs.get('profile_velocity'),
+                                    regs.get('profile_acceleration'), self._profile_units)
         self._profile = profile
         self._profile_t_ms = 0.0
         self._profile_kind = profile.kind
@@ -692,9 +727,45 @@ class ServoDynamics:
         """Goal velocity written: the ramp reads it every period (so override is built in)."""
         if self._mode != regs.get('operating_mode'):
             self._sync_mode_and_torque(regs)
+        if self._timed(regs):
+            # Time-based: the goal is reached Profile Acceleration ms from now.
+            rise_ms = regs.get('profile_acceleration')
+            change = abs(regs.get('goal_velocity') - self._vel_traj_raw)
+            self._vel_rate_raw_ms = change / rise_ms if rise_ms > 0 else 0.0
+        else:
+            self._vel_rate_raw_ms = None
+
+    def _timed(self, regs: RegisterStore) -> bool:
+        """Return whether Drive Mode makes the profile registers times (bit 2)."""
+        bit = self._time_bit
+        return bit is not None and bool(regs.get('drive_mode') >> bit & 1)
+
+    def sync_direction(self, regs: RegisterStore) -> bool:
+        """
+        Turn the frame to what Drive Mode bit 0 says; return whether it turned.
+
+        The horn stays where it is: its count, the trajectory, a hand and the stops change
+        sign (torque is off: the bit is EEPROM), and Present Position is re-initialised.
+        """
+        bit = self._reverse_bit
+        direction = -1.0 if bit is not None and regs.get('drive_mode') >> bit & 1 else 1.0
+        if direction == self._direction:
+            return False
+        self._direction = direction
+        self.horn_position_pulse = -self.horn_position_pulse
+        self._omega_rad_s = -self._omega_rad_s
+        self._hand_sign = -self._hand_sign
+        self.stop_low_pulse, self.stop_high_pulse = -self.stop_high_pulse, -self.stop_low_pulse
+        self.duty = -self.duty
+        self.current_a = -self.current_a
+        self.reset_controllers()
+        self.reinit_present_position(regs)
+        return True
 
     def reinit_present_position(self, regs: RegisterStore) -> None:
         """Present position := horn position within one turn + homing offset."""
+        if self._reverse_bit is not None and self.sync_direction(regs):
+            return   # re-initialised there, in the new frame
         turns = math.floor(self.horn_position_pulse / self._pulses_per_rev)
         # Whole pulses: a model whose turn is not a whole number of pulses rounds here.
         self._turn_offset_pulse = int(round(-self._pulses_per_rev * turns))

@@ -24,6 +24,9 @@ from dxl_servo_driver.protocol import ErrorCode
 _FORMATS = {(1, False): '<B', (1, True): '<b', (2, False): '<H', (2, True): '<h',
             (4, False): '<I', (4, True): '<i'}
 _U16 = struct.Struct('<H')
+# Counted in ms under a time-based Drive Mode (bit 2), 0..32,767 (registers.TIME_PROFILE_MAX_MS).
+_TIME_PROFILE = frozenset({'profile_velocity', 'profile_acceleration'})
+TIME_PROFILE_MAX_MS = 32_767
 # Goal PWM / Goal Current power on at these (EEPROM) limits, where the model has them.
 _GOALS_FROM_LIMITS = (('goal_pwm', 'pwm_limit'), ('goal_current', 'current_limit'))
 # The XM430 manual's model (1030): a servo's model unless one is given.
@@ -448,8 +451,15 @@ class Memory:
         for target, byte in physical.items():
             new[target] = byte
         structs = table.structs
+        timed = self._timed(new, items)
         for name, item in items.items():
             value = structs[name].unpack_from(new, item.address)[0]
+            if timed and name in _TIME_PROFILE:
+                # Drive Mode bit 2: times in ms, neither a speed's range nor bounded by a limit.
+                if not 0 <= value <= TIME_PROFILE_MAX_MS:
+                    raise TableError(ErrorCode.DATA_RANGE, f'{name}={value} outside 0..'
+                                     f'{TIME_PROFILE_MAX_MS} ms (time-based profile)')
+                continue
             if not item.minimum <= value <= item.maximum:
                 raise TableError(ErrorCode.DATA_RANGE,
                                  f'{name}={value} outside {item.minimum}..{item.maximum}')
@@ -459,7 +469,7 @@ class Memory:
                                  f'operating mode {value} does not exist on the '
                                  f'{self.model.name}')
         for name, item in items.items():
-            if item.limit is not None:
+            if item.limit is not None and not (timed and name in _TIME_PROFILE):
                 self._check_limit(new, item, structs[name].unpack_from(new, item.address)[0])
         homing = table.homing
         ignored = self.model.homing_position_mode_limit
@@ -471,6 +481,13 @@ class Memory:
                 stop = homing.address + homing.size
                 new[homing.address:stop] = data[homing.address:stop]
         return new, frozenset(items)
+
+    def _timed(self, new: bytearray, items: dict[str, Item]) -> bool:
+        """Return whether a write touches the profile registers under a time-based Drive Mode."""
+        bit = self.model.time_profile_bit
+        if bit is None or not any(name in _TIME_PROFILE for name in items):
+            return False
+        return bool(self._value(new, 'drive_mode') >> bit & 1)
 
     def commit(self, new: bytearray) -> None:
         """Install memory returned by plan_write()."""

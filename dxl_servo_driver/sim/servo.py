@@ -342,6 +342,9 @@ class SimServo:
             for name in modes.RESET_GAINS:
                 memory.set(name, memory.item(name).initial)
             dynamics.reinit_present_position(memory)
+        if 'drive_mode' in names:
+            # Bit 0 turns the frame Present Position counts in (torque is off: EEPROM).
+            dynamics.reinit_present_position(memory)
         if 'torque_enable' in names:
             torque = memory.get('torque_enable')
             if torque != old_torque:

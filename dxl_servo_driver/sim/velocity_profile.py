@@ -19,6 +19,16 @@ t3 = t1 + t2 with t2 = 64 * dPos / V ms.
 Jerk smoothing is not modelled (the manual says the real travel time may be longer than t3); the
 simulated trajectory ends exactly at t3.
 
+A time-based profile (Drive Mode bit 2, the e-manual's "Profile Configuration") counts both
+registers in ms: Profile Velocity is the time of the whole move (t3), Profile Acceleration the
+time it accelerates (t1, and again to decelerate), at most half of t3 (the e-manual: it "will
+not exceed" 50 %: a larger one is taken as half here). 0 ms of acceleration is the rectangular
+profile, exactly half the triangular one, anything between the trapezoidal; Profile Velocity 0
+is the step, as velocity-based. plan_timed keeps the velocity override: from a start velocity
+v0 the move accelerates linearly to a cruise speed for t1, cruises, and decelerates to rest for
+t1, with the cruise speed that makes it end at the goal at t3 exactly (v0 t1 / 2 + vc (t3 - t1)
+is the distance). In velocity mode t1 is the time to reach Goal Velocity (ramp_timed).
+
 Other families count profiles in other units (the P series: 0.01 rpm and 1 rev/min^2): plan
 and ramp take a ProfileUnits, the X series' (the manual's rounding above) unless told.
 """
@@ -206,6 +216,50 @@ def ramp_velocity(velocity_raw: float, target_raw: float, acceleration_raw: int,
     if acceleration_raw <= 0:
         return target_raw
     step = acceleration_raw * dt_ms * units.velocity_units_per_ms
+    if velocity_raw < target_raw:
+        return min(target_raw, velocity_raw + step)
+    return max(target_raw, velocity_raw - step)
+
+
+def plan_timed(start_pulse: float, start_velocity_pulse_ms: float, goal_pulse: float,
+               total_ms: int, acceleration_ms: int) -> PositionProfile:
+    """Plan a time-based move: rest at goal after total_ms, accelerating for acceleration_ms."""
+    if total_ms <= 0:
+        return PositionProfile(PROFILE_STEP, start_pulse, goal_pulse, [])
+    t3 = float(total_ms)
+    t1 = min(float(max(acceleration_ms, 0)), t3 / 2.0)
+    v0 = start_velocity_pulse_ms if t1 > 0.0 else 0.0
+    cruise = (goal_pulse - start_pulse - 0.5 * v0 * t1) / (t3 - t1)
+    segments: list[Segment] = []
+    t_ms, pos, vel = 0.0, start_pulse, v0
+    for accel, duration in (((cruise - v0) / t1 if t1 else 0.0, t1),
+                            (0.0, t3 - 2.0 * t1),
+                            (-cruise / t1 if t1 else 0.0, t1)):
+        if duration <= 0.0:
+            continue
+        if not segments and t1 == 0.0:
+            vel = cruise   # rectangular: the speed jumps to the cruise speed
+        segments.append(Segment(t_ms, pos, vel, accel, duration))
+        pos += (vel + 0.5 * accel * duration) * duration
+        vel += accel * duration
+        t_ms += duration
+    if t1 == 0.0:
+        kind = PROFILE_RECTANGULAR
+    elif 2.0 * t1 >= t3:
+        kind = PROFILE_TRIANGULAR
+    else:
+        kind = PROFILE_TRAPEZOIDAL
+    if goal_pulse == start_pulse and v0 == 0.0:
+        segments = []
+    return PositionProfile(kind, start_pulse, goal_pulse, segments)
+
+
+def ramp_timed(velocity_raw: float, target_raw: float, rate_raw_per_ms: float,
+               dt_ms: float) -> float:
+    """Velocity mode, time-based: move towards target at the rate its goal was given (units/ms)."""
+    if rate_raw_per_ms <= 0.0:
+        return target_raw
+    step = rate_raw_per_ms * dt_ms
     if velocity_raw < target_raw:
         return min(target_raw, velocity_raw + step)
     return max(target_raw, velocity_raw - step)

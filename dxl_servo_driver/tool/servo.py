@@ -151,7 +151,7 @@ def check_write(link: ServoLink, item: Item, value: int,
     if role in NOT_WRITTEN:
         raise ToolError(f'{item.name} is not written by dxl: {NOT_WRITTEN[role]}', EXIT_USAGE)
     try:
-        registers.check_range(item, value)
+        registers.check_range(item, value, link.model)
         related = registers.related_registers(link.model, role)
         # The rules speak the XM430 manual's names (roles); the tables may call them otherwise.
         values = {link.model.role_of(name): raw for name, raw in (others or {}).items()}
