@@ -145,6 +145,12 @@ def wave(start: Sequence[float], points: int, duration_s: float, amplitude: floa
     return plan
 
 
+def longest_pause_s(states: Messages) -> float:
+    """Return the longest time between two joint_states the node published, by their stamps."""
+    stamps = sorted(stamp_s(msg) for msg in list(states.items))
+    return max((b - a for a, b in zip(stamps, stamps[1:])), default=0.0)
+
+
 def test_a_six_joint_trajectory_is_followed_and_succeeds(h: NodeHarness) -> None:
     client = client_of(h)
     start = settled(h, ARM)
@@ -158,8 +164,7 @@ def test_a_six_joint_trajectory_is_followed_and_succeeds(h: NodeHarness) -> None
     errors = [abs(error) for _, feedback in goal.feedback for error in feedback.error.positions]
     # A cycle the machine held up leaves the servos on an older goal: the path runs on at up to
     # 1.5 rad/s meanwhile. The longest pause between two published samples says how long.
-    stamps = sorted(stamp_s(msg) for msg in list(states.items))
-    pause_s = max((b - a for a, b in zip(stamps, stamps[1:])), default=0.0)
+    pause_s = longest_pause_s(states)
     allowed = 0.15 + 1.5 * max(0.0, pause_s - 0.02)
     print(f'error in {len(goal.feedback)} feedback: max {max(errors):.4f} rad (allowed '
           f'{allowed:.3f}: longest pause {pause_s * 1e3:.0f} ms); final {max(final):.4f} rad; '
@@ -242,7 +247,8 @@ def test_cancel_holds_the_joints_where_they_are(h: NodeHarness) -> None:
     client = client_of(h)
     start = settled(h, ['j1', 'j3'])
     goal = Goal(client, goal_of(['j1', 'j3'], [(2.0, [s + 1.5 for s in start], [])]))
-    time.sleep(0.8)   # about 0.6 rad on the way
+    wait_until(lambda: all(a - s > 0.3 for a, s in zip(here(h, ['j1', 'j3']), start)), 5.0,
+               'the joints on the way')
     goal.cancel()
     status, result = goal.result()
     assert status == GoalStatus.STATUS_CANCELED, result.error_string
@@ -255,7 +261,7 @@ def test_cancel_holds_the_joints_where_they_are(h: NodeHarness) -> None:
     # Held where they were (the last sample ahead of them is not what they go to): within
     # 0.05 rad 0.2 s on, and far from the goal's end.
     assert max(moved) < 0.05, moved
-    assert all(abs(a - (s + 1.5)) > 0.5 for a, s in zip(later, start))
+    assert all(abs(a - (s + 1.5)) > 0.2 for a, s in zip(later, start))
 
 
 def test_a_goal_sharing_a_joint_preempts_the_running_one(h: NodeHarness) -> None:
@@ -276,23 +282,27 @@ def test_a_goal_sharing_a_joint_preempts_the_running_one(h: NodeHarness) -> None
 def test_goals_on_disjoint_joints_run_side_by_side(h: NodeHarness) -> None:
     client = client_of(h)
     start = settled(h, ['j1', 'j4'])
+    states = Messages(h)
     a = Goal(client, goal_of(['j1'], [(1.5, [start[0] + 0.5], [])]))
     b = Goal(client, goal_of(['j4'], [(1.0, [start[1] - 0.5], [])]))
-    time.sleep(0.6)
-    assert not a.done and not b.done   # both under way at once
-    moving = here(h, ['j1', 'j4'])
-    assert moving[0] > start[0] + 0.1 and moving[1] < start[1] - 0.1
     for goal in (a, b):
         status, result = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED, result.error_string
     assert abs(sim_rad(h, 'j1') - (start[0] + 0.5)) < 0.05
     assert abs(sim_rad(h, 'j4') - (start[1] - 0.5)) < 0.05
+    # Both under way at once: one sample (one moment, the node's) has both halfway.
+    both = [msg for msg in list(states.items)
+            if {'j1', 'j4'} <= set(msg.name)
+            and start[0] + 0.1 < msg.position[list(msg.name).index('j1')] < start[0] + 0.4
+            and start[1] - 0.4 < msg.position[list(msg.name).index('j4')] < start[1] - 0.1]
+    assert both, 'no sample with both joints on their way'
 
 
 def test_a_brake_on_one_joint_violates_the_path_tolerance(h: NodeHarness) -> None:
     client = client_of(h)
     start = settled(h, ['j5', 'j6'])
     h.sim.set_load(IDS['j5'], 6.0)   # beyond the XM430's 4.1 N*m stall torque
+    states = Messages(h)
     try:
         goal = Goal(client, goal_of(['j5', 'j6'], [(2.0, [s + 1.0 for s in start], [])],
                                     path_tolerance=[tolerance('j5', 0.1),
@@ -303,8 +313,9 @@ def test_a_brake_on_one_joint_violates_the_path_tolerance(h: NodeHarness) -> Non
         assert status == GoalStatus.STATUS_ABORTED
         assert result.error_code == Result.PATH_TOLERANCE_VIOLATED
         assert "joint 'j5'" in result.error_string
-        # 0.1 rad behind a ramp of 0.5 rad/s: about 0.2 s, the lag of the free joint aside.
-        assert after_s < 0.6
+        # 0.1 rad behind a ramp of 0.5 rad/s: about 0.2 s, the lag of the free joint aside,
+        # and however long a busy machine held the node's cycle up meanwhile.
+        assert after_s < 0.6 + longest_pause_s(states), after_s
         held = here(h, ['j6'])
         time.sleep(0.3)
         assert abs(here(h, ['j6'])[0] - held[0]) < 0.03   # the free joint holds too
