@@ -57,6 +57,7 @@ STALL_VELOCITY_RAW = 2
 STALL_CURRENT_SHARE = 0.8
 STALL_TIME_S = 0.3
 ATTEMPTS = 3                 # tries of one transaction before the bus is said to fail
+LIVE_RETRY_S = 1.0           # ... and how long a live reading is tried at least
 REFRESH_S = 0.1              # the live display's refresh while the range is moved
 
 
@@ -101,18 +102,21 @@ def live(link: ServoLink, name: str) -> int:
     """
     Return an item that changes by itself (a position, a current): read once, unconfirmed.
 
-    A reply lost now and then (noise, a busy adapter) is read again: the readings go on for
-    minutes, and one lost reply must not end a calibration.
+    A reply lost now and then (noise, a busy adapter, a host too loaded to read in time) is
+    read again, ATTEMPTS times and for LIVE_RETRY_S at least: the readings go on for minutes,
+    and a few lost replies must not end a calibration the user has half done.
     """
     item = link.item(name)
-    for attempt in range(ATTEMPTS):
+    give_up = time.monotonic() + LIVE_RETRY_S
+    attempt = 0
+    while True:
         try:
             return item.decode(link.bus.read(link.servo_id, item.address, item.size,
                                              confirm=False))
         except CommError:
-            if attempt == ATTEMPTS - 1:
+            attempt += 1
+            if attempt >= ATTEMPTS and time.monotonic() >= give_up:
                 raise
-    raise AssertionError('unreachable')
 
 
 def put(link: ServoLink, name: str, value: int) -> None:
