@@ -14,12 +14,16 @@ from the repository:
     . tools/env.sh
     python examples/move_and_echo.py shoulder 0.5
     python examples/move_and_echo.py gripper 0.3 --kind current
+    python examples/move_and_echo.py wheel 1.0 --kind velocity --rate 10
     python examples/move_and_echo.py r_shoulder 0.2 --ros-args -r __ns:=/right
 
 It publishes one dxl_servo_driver_msgs/JointCommand on dxl_servo_driver/commands/<kind> (relative
-to its namespace, as the driver's topics are) once the driver subscribes to it, then prints the
-joints' positions from /joint_states every --every seconds, --count times. It exits 1 when no
-driver subscribes, or no joint_states come, within --timeout seconds.
+to its namespace, as the driver's topics are; --driver names another node) once the driver
+subscribes to it, then prints the joints' positions from /joint_states every --every seconds,
+--count times. With --rate it publishes the command again at that rate while it prints, as
+`ros2 topic pub -r` does: with `command_timeout` set, a velocity, current or PWM goal falls back
+to zero unless it is sent again. It exits 1 when no driver subscribes, or no joint_states come,
+within --timeout seconds.
 """
 
 import argparse
@@ -51,9 +55,17 @@ def parse_args(argv: List[str]) -> argparse.Namespace:
                         help='how many joint_states to print (default 8)')
     parser.add_argument('--every', type=float, default=0.25,
                         help='seconds between two printed joint_states (default 0.25)')
+    parser.add_argument('--rate', type=float, default=0.0, metavar='HZ',
+                        help='publish the command again at this rate while printing (default: '
+                        'once)')
+    parser.add_argument('--driver', default='dxl_servo_driver',
+                        help="the driver node's name (default dxl_servo_driver)")
     parser.add_argument('--timeout', type=float, default=10.0,
                         help='seconds to wait for the driver and its joint_states (default 10)')
-    return parser.parse_args(remove_ros_args(argv)[1:])
+    args = parser.parse_args(remove_ros_args(argv)[1:])
+    if args.rate < 0:
+        parser.error('--rate must be 0 (once) or above')
+    return args
 
 
 def line(elapsed_s: float, msg: JointState) -> str:
@@ -65,7 +77,7 @@ def line(elapsed_s: float, msg: JointState) -> str:
 
 def move_and_echo(node: Node, args: argparse.Namespace) -> int:
     """Publish the command once the driver listens, print joint_states; return the exit code."""
-    publisher = node.create_publisher(JointCommand, f'dxl_servo_driver/commands/{args.kind}', 10)
+    publisher = node.create_publisher(JointCommand, f'{args.driver}/commands/{args.kind}', 10)
     latest: List[Optional[JointState]] = [None]
 
     def keep(msg: JointState) -> None:
@@ -79,16 +91,22 @@ def move_and_echo(node: Node, args: argparse.Namespace) -> int:
                   '(is it running, in this namespace and ROS_DOMAIN_ID?)', file=sys.stderr)
             return 1
         rclpy.spin_once(node, timeout_sec=0.05)
-    publisher.publish(JointCommand(name=[args.joint], value=[args.value]))
-    print(f'published {args.joint} {args.value:g} {UNITS[args.kind]} on {publisher.topic_name}; '
-          f'positions from {node.resolve_topic_name("joint_states")}:', flush=True)
+    command = JointCommand(name=[args.joint], value=[args.value])
+    publisher.publish(command)
+    again = f', again at {args.rate:g} Hz' if args.rate else ''
+    print(f'published {args.joint} {args.value:g} {UNITS[args.kind]} on {publisher.topic_name}'
+          f'{again}; positions from {node.resolve_topic_name("joint_states")}:', flush=True)
 
     start = time.monotonic()
     due = start + args.every
+    resend = start + (1.0 / args.rate if args.rate else float('inf'))
     printed = 0
     while printed < args.count:
         rclpy.spin_once(node, timeout_sec=0.02)
         now = time.monotonic()
+        if now >= resend:
+            publisher.publish(command)
+            resend += 1.0 / args.rate
         if latest[0] is None:
             if now - start > args.timeout:
                 print(f'no joint_states within {args.timeout:g} s', file=sys.stderr)

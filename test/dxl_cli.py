@@ -1,11 +1,14 @@
 """The `dxl` tool as a user runs it: the installed executable, to its end or at a terminal."""
 
+import math
 import os
 import re
 import subprocess
-from typing import List, Tuple
+import time
+from typing import List, Optional, Tuple
 
 from ament_index_python.packages import get_package_prefix
+from dxl_servo_driver.models import model_named
 import pexpect
 from processes import ROOT, VirtualBusProcess
 
@@ -56,3 +59,22 @@ def near(value: float) -> str:
     """Return a regex of how the live display prints a value within TOLERANCE of value."""
     shown = {f'{value + step / 1000.0:+.3f}' for step in range(-2, 3)}
     return '(' + '|'.join(re.escape(text) for text in sorted(shown)) + ')'
+
+
+def spawn(*args: str, cwd: Optional[str] = None) -> 'pexpect.spawn[str]':
+    """Start the installed dxl on a terminal (wide: a live display's line is not wrapped)."""
+    return pexpect.spawn(DXL, list(args), encoding='utf-8', timeout=EXPECT_TIMEOUT_S,
+                         dimensions=(24, 400), cwd=cwd)
+
+
+def turn_horn(bus: VirtualBusProcess, ref: str, model: str, rad: float,
+              seconds: float = 0.3) -> None:
+    """Turn a horn by hand (`turn REF RAD SECONDS`); return once it reads there."""
+    answer = bus.control(f'turn {ref} {rad} {seconds}')
+    assert answer.startswith('ok'), answer
+    table = model_named(model)
+    target = table.position_zero_raw + rad * table.pulses_per_rev / (2.0 * math.pi)
+    deadline = time.monotonic() + EXPECT_TIMEOUT_S
+    while abs(bus.get(ref, 'present_position') - target) > 1.0:
+        assert time.monotonic() < deadline, f'the horn of {ref} did not reach {rad}'
+        time.sleep(0.02)

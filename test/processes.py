@@ -269,14 +269,18 @@ class NodeProcess:
     The installed node executable with a params file, in a namespace if one is given.
 
     Its params file, its output (stdout and stderr) and its ROS_LOG_DIR are in workdir, named
-    after the namespace, so two nodes can share one workdir.
+    after the namespace, so two nodes can share one workdir. With ros_args (a documented
+    command line's words after `--ros-args`) the node gets those instead of the params file
+    and namespace, run from cwd (relative paths in them are the reader's, from the repository).
     """
 
     def __init__(self, workdir: pathlib.Path, params_yaml: str, namespace: str = '',
-                 domain_id: Optional[int] = None) -> None:
+                 domain_id: Optional[int] = None, ros_args: Optional[Sequence[str]] = None,
+                 cwd: Optional[pathlib.Path] = None) -> None:
         tag = namespace.strip('/').replace('/', '_') or 'node'
         params = workdir / f'{tag}_params.yaml'
-        params.write_text(params_yaml)
+        if ros_args is None:
+            params.write_text(params_yaml)
         self.output_path = workdir / f'{tag}_output.txt'
         env = dict(os.environ)
         if domain_id is not None:
@@ -284,11 +288,12 @@ class NodeProcess:
         env['ROS_LOG_DIR'] = str(workdir / f'{tag}_ros_log')   # its log files stay in workdir
         env['PYTHONUNBUFFERED'] = '1'
         remap = ['-r', f'__ns:={namespace}'] if namespace else []
+        args = [*remap, '--params-file', str(params)] if ros_args is None else list(ros_args)
         with open(self.output_path, 'w') as output:
             self.proc = subprocess.Popen(
-                [node_executable(), '--ros-args', *remap, '--params-file', str(params)],
+                [node_executable(), '--ros-args', *args],
                 stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, env=env,
-                cwd=str(workdir))
+                cwd=str(cwd or workdir))
 
     def output(self) -> str:
         """Return what the node printed so far."""

@@ -324,8 +324,18 @@ class DriverNode(LifecycleNode):
         return super().on_activate(state)
 
     def _say_what_to_try(self) -> None:
-        """On the simulated bus (make run), log three commands a newcomer can paste next."""
-        self.get_logger().info('try next:\n  ' + '\n  '.join(self.what_to_try()))
+        """
+        On the simulated bus (make run), log commands a newcomer can paste next.
+
+        The ros2 command line's, and the same from the repository's examples/ scripts: ROS 2
+        from PyPI (make setup without a ROS install) has no `ros2` command.
+        """
+        text = 'try next:\n  ' + '\n  '.join(self.what_to_try())
+        examples = self.what_to_try_without_ros2()
+        if examples:
+            text += ('\nor, without the ros2 command line (ROS 2 from PyPI), from the repository '
+                     'after `. tools/env.sh`:\n  ' + '\n  '.join(examples))
+        self.get_logger().info(text)
 
     def what_to_try(self) -> List[str]:
         """Return an echo of joint_states and a goal for a position and a velocity joint."""
@@ -338,6 +348,22 @@ class DriverNode(LifecycleNode):
                 lines.append(f'ros2 topic pub {how} {ns}/commands/{mode} '
                              f'dxl_servo_driver_msgs/msg/JointCommand '
                              f'"{{name: [{by_mode[mode]}], value: [{value}]}}"')
+        return lines
+
+    def what_to_try_without_ros2(self) -> List[str]:
+        """Return what_to_try's goals as examples/move_and_echo.py lines (it echoes too)."""
+        by_mode = {servo.mode: servo.name for servo in reversed(self.manager.joints)}
+        where = ''
+        if self.get_name() != NODE_NAME:
+            where += f' --driver {self.get_name()}'
+        if self.get_namespace() != '/':
+            where += f' --ros-args -r __ns:={self.get_namespace()}'
+        lines = []
+        for mode, how, value in (('position', '', 0.5), ('velocity', ' --rate 10', 1.0)):
+            if mode in by_mode:
+                kind = '' if mode == 'position' else f' --kind {mode}'
+                lines.append(f'python examples/move_and_echo.py {by_mode[mode]} {value}{kind}'
+                             f'{how}{where}')
         return lines
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -57,6 +57,7 @@ STALL_VELOCITY_RAW = 2
 STALL_CURRENT_SHARE = 0.8
 STALL_TIME_S = 0.3
 ATTEMPTS = 3                 # tries of one transaction before the bus is said to fail
+LIVE_RETRY_S = 1.0           # ... and how long a live reading is tried at least
 REFRESH_S = 0.1              # the live display's refresh while the range is moved
 
 
@@ -101,18 +102,21 @@ def live(link: ServoLink, name: str) -> int:
     """
     Return an item that changes by itself (a position, a current): read once, unconfirmed.
 
-    A reply lost now and then (noise, a busy adapter) is read again: the readings go on for
-    minutes, and one lost reply must not end a calibration.
+    A reply lost now and then (noise, a busy adapter, a host too loaded to read in time) is
+    read again, ATTEMPTS times and for LIVE_RETRY_S at least: the readings go on for minutes,
+    and a few lost replies must not end a calibration the user has half done.
     """
     item = link.item(name)
-    for attempt in range(ATTEMPTS):
+    give_up = time.monotonic() + LIVE_RETRY_S
+    attempt = 0
+    while True:
         try:
             return item.decode(link.bus.read(link.servo_id, item.address, item.size,
                                              confirm=False))
         except CommError:
-            if attempt == ATTEMPTS - 1:
+            attempt += 1
+            if attempt >= ATTEMPTS and time.monotonic() >= give_up:
                 raise
-    raise AssertionError('unreachable')
 
 
 def put(link: ServoLink, name: str, value: int) -> None:
@@ -633,6 +637,7 @@ def run(args: argparse.Namespace) -> int:
             names.append(args.find_stops)
     if args.margin < 0 or args.min_move <= 0 or args.speed <= 0:
         raise ToolError('--margin must be >= 0, --min-move and --speed > 0', EXIT_USAGE)
+    check_editable(args.params, text, config, args.joints or names, steps, args.find_stops)
     bus = open_bus(args.port or config.port, args.baud or config.baud_rate, config.protocol,
                    trace=args.trace)
     prompter = Prompter(sys.stdin, sys.stdout)
@@ -666,6 +671,43 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bus.close()
     return EXIT_FAILED if status == DECLINED else EXIT_OK
+
+
+def planned_keys(joint: driver_config.JointConfig, steps: Sequence[str],
+                 find_stops: bool) -> Dict[str, object]:
+    """Return the keys the steps will write into a joint, each with a stand-in value."""
+    second = joint.secondary_id is not None
+    keys: Dict[str, object] = {}
+    if 'zero' in steps:
+        keys.update({'offset': 0.0, **({'secondary_offset': 0.0} if second else {})})
+    if 'direction' in steps:
+        keys.update({'reverse': False, **({'secondary_reverse': False} if second else {})})
+    if 'range' in steps or find_stops:
+        keys.update({'min_position': -1.0, 'max_position': 1.0})
+        if joint.gripper:
+            keys.update({'gripper_open': 0.0, 'gripper_closed': 1.0})
+    return keys
+
+
+def check_editable(path: str, text: str, config: driver_config.DriverConfig,
+                   names: Sequence[str], steps: Sequence[str],
+                   find_stops: Optional[str]) -> None:
+    """
+    Refuse (ToolError) a file the calibration could not be written into, before it starts.
+
+    The keys each step will write are placed, with stand-in values, by the same editor that
+    writes them at the end: a joint it cannot change is named now, before torque goes off and
+    the user moves the arm, not after.
+    """
+    planned = {name: planned_keys(config.joint(name), steps, False) for name in names}
+    if find_stops is not None:
+        planned.setdefault(find_stops, {}).update(
+            planned_keys(config.joint(find_stops), (), True))
+    try:
+        yaml_edit.apply(text, {name: keys for name, keys in planned.items() if keys})
+    except yaml_edit.EditError as exc:
+        raise ToolError(f'{path}: {exc}; the calibration could not be written there, so '
+                        'nothing was started (torque untouched)', EXIT_USAGE) from None
 
 
 WRITTEN, UNCHANGED, DRY_RUN, DECLINED = 'written', 'unchanged', 'dry run', 'declined'

@@ -9,9 +9,16 @@ when the new value leaves room) or inserts a `key: value` line at the end of the
 indented as its other keys. A joint given in the flat form (`elbow.offset: 0.2` directly under
 ros__parameters) is changed in place the same way. Every other line stays byte-identical.
 
+A joint written inline as a flow mapping on one line (`elbow: {id: 3, operating_mode:
+position}`, as README.md's first example is) is first unfolded into the block mapping it means:
+`elbow:` (its comment kept) and one `key: value` line per entry, each value's text as it was (a
+nested flow mapping unfolded too, a flow sequence kept inline), indented as the file's other
+joints indent their keys; then changed like any block.
+
 What it cannot place it refuses (EditError, nothing changed): no block form it recognises (a
-flow mapping `elbow: {id: 3}`, a value continued on further lines, a key given twice, tabs), or
-an edited text that would not read back (PyYAML) as the old parameters with exactly the changes.
+flow mapping continued on further lines, a value continued on further lines, a key given twice,
+tabs), or an edited text that would not read back (PyYAML) as the old parameters with exactly
+the changes.
 """
 
 from dataclasses import dataclass
@@ -99,7 +106,8 @@ def _split_comment(rest: str) -> Tuple[str, str]:
                 quote = ''
         elif char in '\'"' and (index == 0 or rest[index - 1] in ' \t'):
             quote = char
-        elif char == '#' and index > 0 and rest[index - 1] in ' \t':
+        elif char == '#' and (index == 0 or rest[index - 1] in ' \t'):
+            # At 0 too: what follows a key's colon starts after a space (_KEY_LINE).
             value = rest[:index].rstrip()
             return value, rest[len(value):]
     return rest.rstrip(), ''
@@ -227,6 +235,114 @@ def _set(lines: List[_Line], joint: str, key: str, value: str) -> Optional[Tuple
     raise EditError(f'joint {joint!r} is not in the "{SECTION_KEY}:" block')
 
 
+def _flow_split(body: str, at: str) -> List[str]:
+    """
+    Return body split at every `at` outside quotes and brackets (`at` ':' splits once).
+
+    ':' counts only followed by a space or at the end, as YAML reads a flow entry's colon.
+    """
+    parts: List[str] = []
+    depth, quote, start, index = 0, '', 0, 0
+    while index < len(body):
+        char = body[index]
+        if quote:
+            if char == '\\' and quote == '"':
+                index += 1   # an escaped character of a double-quoted string
+            elif char == quote:
+                quote = ''
+        elif char in '\'"' and (index == start or body[index - 1] in ' \t,[{:'):
+            quote = char
+        elif char in '[{':
+            depth += 1
+        elif char in ']}':
+            depth -= 1
+            if depth < 0:
+                raise EditError('unbalanced brackets')
+        elif char == at and depth == 0 and (
+                at == ',' or index + 1 == len(body) or body[index + 1] in ' \t'):
+            parts.append(body[start:index])
+            start = index + 1
+            if at == ':':
+                break
+        index += 1
+    if quote or depth:
+        raise EditError('an unclosed quote or bracket')
+    parts.append(body[start:])
+    return parts
+
+
+def _flow_entries(text: str, indent: int, step: int) -> List[str]:
+    """Return a one-line flow mapping `{k: v, ...}` as block lines at indent (values kept)."""
+    body = text.strip()
+    if not (body.startswith('{') and body.endswith('}')):
+        raise EditError('not a flow mapping closed on its line')
+    lines: List[str] = []
+    for entry in _flow_split(body[1:-1], ','):
+        if not entry.strip():
+            continue   # `{}` or a trailing comma
+        pair = _flow_split(entry.strip(), ':')
+        if len(pair) != 2 or not pair[0].strip() or not pair[1].strip():
+            raise EditError(f'{entry.strip()!r} is not a `key: value` entry')
+        key, value = pair[0].strip(), pair[1].strip()
+        if value.startswith('{'):
+            lines.append(' ' * indent + f'{key}:')
+            lines.extend(_flow_entries(value, indent + step, step))
+        else:
+            lines.append(' ' * indent + f'{key}: {value}')
+    if not lines:
+        raise EditError('an empty flow mapping')
+    return lines
+
+
+def _indent_step(lines: Sequence[_Line], first: Sequence[int]) -> int:
+    """
+    Return how far the file indents a block mapping's keys under it (2 if it shows none).
+
+    The key lines `first` (the other joints) are looked at before the rest of the file.
+    """
+    for index in [*first, *range(len(lines) - 1)]:
+        line = lines[index]
+        if line.key is not None and not _split_comment(line.rest)[0]:
+            deeper = next((other for other in lines[index + 1:] if other.indent >= 0), None)
+            if deeper is not None and deeper.indent > line.indent:
+                return deeper.indent - line.indent
+    return 2
+
+
+def _unfold(lines: List[_Line], joint: str) -> None:
+    """Rewrite a joint written as a one-line flow mapping as its block mapping, in place."""
+    start, end = _section(lines)
+    children = _children(lines, start, end)
+    block = _only([i for i in children if lines[i].key == joint], lines, f'joint {joint!r}')
+    if block is None:
+        return
+    line = lines[block]
+    value, comment = _split_comment(line.rest)
+    if not value.startswith('{'):
+        return
+    if _block_end(lines, block, line.indent) > block + 1:
+        raise EditError(f'line {block + 1}: joint {joint!r} is a flow mapping continued on the '
+                        'next lines: write it as a block mapping (`' + joint + ':` and one key '
+                        'a line under it)')
+    try:
+        step = _indent_step(lines, children)
+        body = _flow_entries(value, line.indent + step, step)
+    except EditError as exc:
+        raise EditError(f'line {block + 1}: joint {joint!r} is written inline (a flow mapping) '
+                        f'that this editor cannot unfold ({exc}): write it as a block mapping '
+                        f'(`{joint}:` and one key a line under it)') from None
+    new = [line.text[:len(line.text) - len(line.rest)].rstrip() + comment, *body]
+    end_of_line = line.end or '\n'
+    unfolded = []
+    for number, text in enumerate(new):
+        match = _KEY_LINE.match(text)
+        assert match is not None
+        unfolded.append(_Line(text, line.end if number == len(new) - 1 else end_of_line,
+                              len(match.group('indent')), _unquote(match.group('key').strip()),
+                              match.group('rest') or ''))
+    lines[block:block + 1] = unfolded
+
+
 def find_parameters(tree: Any) -> List[Dict[str, Any]]:
     """Return every `ros__parameters` mapping of a loaded parameter file, in file order."""
     found: List[Dict[str, Any]] = []
@@ -273,6 +389,8 @@ def apply(text: str, changes: Mapping[str, Mapping[str, Any]]) -> str:
     except yaml.YAMLError as exc:
         raise EditError(f'the file is not valid YAML: {str(exc).splitlines()[0]}') from None
     lines = _split_lines(text)
+    for joint in changes:
+        _unfold(lines, joint)
     for joint, keys in changes.items():
         for key, value in keys.items():
             insert = _set(lines, joint, key, format_value(value))

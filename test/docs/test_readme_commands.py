@@ -178,6 +178,20 @@ def check_suggestions(h: NodeHarness) -> None:
         kinds.append(words[3])
         assert replay(h, words)[0] == 'topic'
     assert kinds == ['--once', '-r']
+    # The same goals with examples/move_and_echo.py, for ROS 2 from PyPI (no ros2 command):
+    # the joint, value and kind of each ros2 line, streamed where it streams, in the node's
+    # namespace (the harness's own).
+    examples = h.node.what_to_try_without_ros2()
+    assert len(examples) == 2
+    for ros2, example in zip(lines[1:], examples):
+        words = shlex.split(example)
+        assert words[:2] == ['python', 'examples/move_and_echo.py'], example
+        assert words[-3:] == ['--ros-args', '-r', f'__ns:={h.namespace}'], example
+        args = example_module().parse_args(['move_and_echo', *words[2:]])
+        payload = yaml.safe_load(shlex.split(ros2)[-1])
+        assert ([args.joint], [args.value]) == (payload['name'], payload['value']), example
+        assert f'/commands/{args.kind} ' in ros2, (ros2, example)
+        assert (args.rate == 10.0) == (' -r 10 ' in ros2), (ros2, example)
 
 
 # make run's node, as a process: its log and the example scripts. -----------------------------
@@ -209,11 +223,11 @@ def log_samples() -> List[List[str]]:
     return samples
 
 
-def example_lines() -> List[List[str]]:
-    """Return the `python examples/...` lines of make run's blocks, as words, each once."""
+def example_lines(script: str = 'move_and_echo.py') -> List[List[str]]:
+    """Return make run's blocks' `python examples/<script>` lines, as words, each once."""
     found: List[List[str]] = []
     for line in (line for block in make_run_blocks() for line in block.splitlines()):
-        at = line.find('python examples/')
+        at = line.find(f'python examples/{script}')
         if at >= 0:
             words = shlex.split(line[at:], comments=True)
             if words not in found:
@@ -268,7 +282,11 @@ def make_run() -> Iterator[MakeRun]:
 def test_the_docs_show_what_make_run_prints() -> None:
     assert len(log_samples()) >= 1
     assert any(MEASURED in line for sample in log_samples() for line in sample)
-    assert example_lines(), 'no `python examples/...` line to run'
+    assert example_lines(), 'no `python examples/move_and_echo.py` line to run'
+    assert example_lines(FOLLOW), f'no `python examples/{FOLLOW}` line to run'
+    scripts = {word for block in make_run_blocks() for word in block.split()
+               if word.startswith('examples/') and word.endswith('.py')}
+    assert scripts == {'examples/move_and_echo.py', f'examples/{FOLLOW}'}, scripts
 
 
 @pytest.mark.parametrize('index', range(len(log_samples())))
@@ -303,3 +321,25 @@ def test_each_example_line_runs(make_run: MakeRun, index: int) -> None:
     if args.kind == 'position':   # the joint went there
         last = re.search(rf'(?:^| ){re.escape(args.joint)}=([-+]\d+\.\d+)', states[-1])
         assert last is not None and abs(float(last.group(1)) - args.value) < 0.03, told
+
+
+FOLLOW = 'follow_trajectory.py'
+
+
+@pytest.mark.parametrize('index', range(len(example_lines(FOLLOW))))
+def test_each_follow_trajectory_line_runs(make_run: MakeRun, index: int) -> None:
+    """A FollowJointTrajectory goal as the docs send it: SUCCESSFUL, the joints where asked."""
+    words = example_lines(FOLLOW)[index]
+    done = subprocess.run([sys.executable, *words[1:]], cwd=str(ROOT), env=make_run.env(),
+                          capture_output=True, text=True, timeout=EXAMPLE_TIMEOUT_S)
+    told = f'{shlex.join(words)}:\n{done.stdout}{done.stderr}\nnode:\n{make_run.node.output()}'
+    assert done.returncode == 0, told
+    assert re.search(r'^result: SUCCESSFUL', done.stdout, re.M), told
+    arrived = re.search(r'^arrived (.*)$', done.stdout, re.M)
+    assert arrived is not None, told
+    at = {name: float(value) for name, value in
+          (pair.split('=') for pair in arrived.group(1).split())}
+    for target in words[2:]:
+        if '=' in target and not target.startswith('-'):
+            name, value = target.split('=')
+            assert abs(at[name] - float(value)) < 0.05, told   # the default goal_tolerance

@@ -97,11 +97,11 @@ def loaded(path: pathlib.Path) -> Dict[str, Any]:
     return params
 
 
-def with_bus(device: str, action: Any) -> Any:
+def with_bus(device: str, action: Any, baud_bps: int = BAUD) -> Any:
     """Open the pty through the driver's Bus, run action(bus), close it."""
-    port = open_port(device, BAUD)
+    port = open_port(device, baud_bps)
     try:
-        return action(Bus(port, BAUD, latency_timer_s=0.2))
+        return action(Bus(port, baud_bps, latency_timer_s=0.2))
     finally:
         port.close()
 
@@ -338,6 +338,79 @@ def test_a_bad_file_is_refused_with_the_drivers_message(tmp_path: pathlib.Path) 
     done = subprocess.run([DXL, 'calibrate', '--params', str(params)], stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=EXPECT_TIMEOUT_S)
     assert done.returncode == 2 and 'invalid YAML' in done.stderr, done.stderr
+
+
+# README.md's "Configure a joint" file on a pty: its joint written inline, as a flow mapping.
+ONE_JOINT = (ROOT / 'config' / 'one_joint.yaml').read_text()
+
+
+def inline(port: pathlib.Path) -> str:
+    """Return config/one_joint.yaml on this port."""
+    assert 'port: sim ' in ONE_JOINT
+    return ONE_JOINT.replace('port: sim ', f'port: {port} ')
+
+
+def test_a_joint_written_inline_is_calibrated_by_hand_and_written_as_a_block(
+        virtual_bus: StartVirtualBus, tmp_path: pathlib.Path) -> None:
+    link = tmp_path / 'ttyDXL'
+    bus = virtual_bus([1], 57600, link, extra_args=['--models', MODELS[0]])
+    params = tmp_path / 'one_joint.yaml'
+    params.write_text(inline(link))
+    assert '    shoulder: {id: 1, operating_mode: position}\n' in params.read_text()
+    turn(bus, 1, ZERO[1])
+    child = spawn('calibrate', '--params', str(params))
+    try:
+        child.expect('zero pose.*press Enter: ')
+        child.sendline('')
+        child.expect(r'shoulder: offset ([-+]\d+\.\d+) rad')
+        assert abs(float(child.match.group(1)) - ZERO[1]) < TOLERANCE
+        child.expect('Move shoulder in its positive direction.*Enter: ')
+        turn(bus, 1, ZERO[1] - 0.5, 0.3)
+        child.sendline('')
+        child.expect('shoulder: servo id 1 counted down.*reverse true')
+        child.expect('whole range')
+        for joint_rad in (-1.0, 0.8):
+            turn(bus, 1, ZERO[1] - joint_rad, 0.3)
+            child.expect(rf'shoulder {near(joint_rad)} \[')
+        child.sendline('')
+        child.expect(r'Write these changes to .*\? \[y/N\] ')
+        child.sendline('y')
+        child.expect('wrote')
+        status, output = finish(child)
+    finally:
+        child.close(force=True)
+    assert status == 0, output
+    text = params.read_text()
+    head, _, tail = inline(link).partition(
+        '    shoulder: {id: 1, operating_mode: position}\n')
+    assert text.startswith(head + '    shoulder:\n      id: 1\n      operating_mode: position\n')
+    assert text.endswith(tail)
+    written = loaded(params)
+    assert abs(written['shoulder.offset'] - ZERO[1]) < TOLERANCE
+    assert written['shoulder.reverse'] is True
+    assert abs(written['shoulder.min_position'] - (-1.0 - calibrate.DEFAULT_MARGIN)) < TOLERANCE
+    assert abs(written['shoulder.max_position'] - (0.8 + calibrate.DEFAULT_MARGIN)) < TOLERANCE
+
+
+def test_a_joint_that_cannot_be_edited_is_refused_before_torque_goes_off(
+        virtual_bus: StartVirtualBus, tmp_path: pathlib.Path) -> None:
+    link = tmp_path / 'ttyDXL'
+    bus = virtual_bus([1], 57600, link, extra_args=['--models', MODELS[0]])
+    with_bus(bus.device, lambda b: b.write(1, 64, bytes([1])), 57600)   # Torque Enable
+    params = tmp_path / 'one_joint.yaml'
+    params.write_text(inline(link).replace(
+        '{id: 1, operating_mode: position}', '{id: 1,\n               operating_mode: position}'))
+    before = params.read_text()
+    child = spawn('calibrate', '--params', str(params))
+    try:
+        status, output = finish(child)
+    finally:
+        child.close(force=True)
+    assert status == 2, output
+    assert "joint 'shoulder' is a flow mapping continued on the next lines" in output, output
+    assert 'nothing was started' in output and 'zero pose' not in output, output
+    assert params.read_text() == before
+    assert bus.get(1, 'torque_enable') == 1
 
 
 def test_a_joint_whose_servo_does_not_answer(virtual_bus: StartVirtualBus,

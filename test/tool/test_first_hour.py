@@ -8,15 +8,11 @@ the horns; and the node, run on the file calibration wrote, publishes 0 rad at t
 Every command is the installed executable on a terminal (pexpect), answered as a user would.
 """
 
-import math
 import pathlib
-import time
 from typing import Dict, List, Tuple
 
-from dxl_cli import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
-from dxl_servo_driver.models import model_named
+from dxl_cli import finish, near, spawn, TOLERANCE, turn_horn
 from node_harness import Client
-import pexpect
 from processes import NodeProcess, START_TIMEOUT_S, StartVirtualBus, VirtualBusProcess
 import pytest
 
@@ -50,22 +46,9 @@ PARAMS = """\
 RANGE = (-0.8, 0.9)
 
 
-def spawn(*args: str) -> 'pexpect.spawn[str]':
-    """Start the installed dxl on a terminal."""
-    return pexpect.spawn(DXL, list(args), encoding='utf-8', timeout=EXPECT_TIMEOUT_S,
-                         dimensions=(24, 400))
-
-
 def turn(bus: VirtualBusProcess, slot: int, rad: float, seconds: float = 0.3) -> None:
     """Turn the horn of the slot-th servo by hand; return once it reads there."""
-    answer = bus.control(f'turn #{slot} {rad} {seconds}')
-    assert answer.startswith('ok'), answer
-    model = model_named(ARM[slot - 1][2])
-    target = model.position_zero_raw + rad * model.pulses_per_rev / (2.0 * math.pi)
-    deadline = time.monotonic() + EXPECT_TIMEOUT_S
-    while abs(bus.get(f'#{slot}', 'present_position') - target) > 1.0:
-        assert time.monotonic() < deadline, f'the horn of #{slot} did not reach {rad}'
-        time.sleep(0.02)
+    turn_horn(bus, f'#{slot}', ARM[slot - 1][2], rad, seconds)
 
 
 @pytest.mark.process

@@ -103,7 +103,10 @@ def test_the_section_listing_joints_is_the_one_changed() -> None:
 
 @pytest.mark.parametrize('text, words', [
     ('/**: {ros__parameters: {joints: [a], a: {id: 1}}}\n', 'no "ros__parameters:" block'),
-    ('/**:\n  ros__parameters:\n    joints: [a]\n    a: {id: 1}\n', 'written inline'),
+    ('/**:\n  ros__parameters:\n    joints: [a]\n    a: 3\n', 'written inline'),
+    ('/**:\n  ros__parameters:\n    joints: [a]\n    a: {id: 1,\n        offset: 0.2}\n',
+     "joint 'a' is a flow mapping continued on the next lines"),
+    ('/**:\n  ros__parameters:\n    joints: [a]\n    a: {id}\n', 'cannot unfold'),
     ('/**:\n  ros__parameters:\n    joints: [a]\n    a:\n      id: 1\n      offset: 0.1\n'
      '      offset: 0.2\n', 'given 2 times'),
     ('/**:\n  ros__parameters:\n    joints: [a]\n    a:\n      id: 1\n      offset:\n'
@@ -121,6 +124,41 @@ def test_the_section_listing_joints_is_the_one_changed() -> None:
 def test_what_cannot_be_placed_is_refused(text: str, words: str) -> None:
     with pytest.raises(yaml_edit.EditError, match=words.replace('(', r'\(')):
         yaml_edit.apply(text, {'a': {'offset': 0.5}})
+
+
+def test_a_joint_written_inline_is_unfolded_into_a_block_the_rest_byte_identical() -> None:
+    # README.md's first parameter file: `shoulder: {id: 1, operating_mode: position}`.
+    text = (ROOT / 'config' / 'one_joint.yaml').read_text()
+    inline = '    shoulder: {id: 1, operating_mode: position}\n'
+    assert inline in text
+    new = yaml_edit.apply(text, {'shoulder': {'offset': 0.25, 'reverse': True}})
+    head, _, tail = text.partition(inline)
+    assert new == head + ('    shoulder:\n      id: 1\n      operating_mode: position\n'
+                          '      offset: 0.25\n      reverse: true\n') + tail
+    assert flat(new) == {**flat(text), 'shoulder.offset': 0.25, 'shoulder.reverse': True}
+
+
+def test_an_inline_joint_keeps_its_comment_values_as_written_and_the_files_indent() -> None:
+    text = ('/**:\r\n  ros__parameters:\r\n    joints: [a, b]\r\n'
+            '    a: {id: 1, registers: {profile_velocity: 30}, note: "x, y: z", '
+            'ids: [1, 2],}   # the elbow\r\n    b:\r\n        id: 2\r\n')
+    new = yaml_edit.apply(text, {'a': {'offset': 0.5}})
+    assert new == ('/**:\r\n  ros__parameters:\r\n    joints: [a, b]\r\n'
+                   '    a:   # the elbow\r\n        id: 1\r\n        registers:\r\n'
+                   '            profile_velocity: 30\r\n        note: "x, y: z"\r\n'
+                   '        ids: [1, 2]\r\n        offset: 0.5\r\n    b:\r\n        id: 2\r\n')
+    # Only the joints changed are unfolded.
+    other = text.replace('    b:\r\n        id: 2', '    b: {id: 2}')
+    assert yaml_edit.apply(other, {'a': {'offset': 0.5}}).endswith('    b: {id: 2}\r\n')
+
+
+def test_a_joint_with_a_comment_after_its_colon_is_a_block() -> None:
+    # config/koch_leader.yaml's gripper: `gripper:      # the trigger ...`.
+    text = '/**:\n  ros__parameters:\n    joints: [a]\n    a:        # the trigger\n      id: 1\n'
+    assert yaml_edit.apply(text, {'a': {'offset': 0.5}}) == text + '      offset: 0.5\n'
+    leader = (ROOT / 'config' / 'koch_leader.yaml').read_text()
+    new = yaml_edit.apply(leader, {'gripper': {'gripper_open': 0.1}})
+    assert flat(new)['gripper.gripper_open'] == 0.1
 
 
 def test_a_block_scalar_is_not_taken_for_keys() -> None:
