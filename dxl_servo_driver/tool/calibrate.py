@@ -40,6 +40,7 @@ from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, ConfigurationError
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.units import JointFrame, units_for
+from dxl_servo_driver.registers import time_based
 from dxl_servo_driver.tool import yaml_edit
 from dxl_servo_driver.tool.common import (
     EXIT_FAILED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError)
@@ -529,8 +530,9 @@ class Calibration:
             raise ToolError(f'--current {current_a:g} A: must be above 0 and at most the '
                             f'Current Limit of id {link.servo_id} ({limit_a:.4g} A)', EXIT_USAGE)
         goal_current = min(limit_raw, int(current_a / model.current_unit_a + 1e-9))
+        # Drive Mode first: restored before the profile that its time-based bit gives a meaning.
         saved = {name: link.read(name) for name in
-                 (model.mode_register, 'goal_current', 'profile_velocity')
+                 ('drive_mode', model.mode_register, 'goal_current', 'profile_velocity')
                  if model.has(name)}
         self.say(f'{joint.name}: finding its stops at {goal_current * model.current_unit_a:.3g} '
                  f'A, {self.args.speed:g} rad/s (Ctrl-C stops it)')
@@ -540,6 +542,11 @@ class Calibration:
             put(link, 'torque_enable', 0)
             put(link, model.mode_register, model.modes['current_based_position'])
             put(link, 'goal_current', goal_current)
+            if time_based(model, saved.get('drive_mode')):
+                # A time-based profile would take the speed below for a move's time in ms:
+                # velocity-based while the stops are found, the servo's own mode restored after.
+                assert model.time_profile_bit is not None
+                put(link, 'drive_mode', saved['drive_mode'] & ~(1 << model.time_profile_bit))
             velocity = link.item('profile_velocity')
             put(link, 'profile_velocity', max(1, from_si(model, velocity, self.args.speed)))
             turns = torque_on_holding(link)

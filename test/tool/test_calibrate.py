@@ -326,6 +326,48 @@ def test_find_stops_within_the_current_set(arm: Tuple[VirtualBusProcess, pathlib
     assert bus.get(3, 'torque_enable') == 0 and bus.get(3, 'operating_mode') == 3
 
 
+def test_find_stops_on_a_time_based_profile_moves_at_the_speed_given(
+        arm: Tuple[VirtualBusProcess, pathlib.Path]) -> None:
+    # An arm set up as Interbotix's are: Drive Mode's time-based bit, Profile Velocity 2000 ms.
+    # The push must still go at --speed (not in 1.0 rad/s read as a few ms), and the servo's
+    # own profile must be what it was after.
+    bus, params = arm
+    for name, value in (('drive_mode', 4), ('profile_velocity', 2000)):
+        done = subprocess.run([DXL, 'set', '3', name, str(value), '--raw', '--port',
+                               str(bus.link), '--baud', str(BAUD)], stdin=subprocess.DEVNULL,
+                              capture_output=True, text=True, timeout=EXPECT_TIMEOUT_S)
+        assert done.returncode == 0, done.stderr
+    assert bus.control('stops 3 -0.4 1.6').startswith('ok')
+    speeds: List[int] = []
+    stop = threading.Event()
+
+    def watch() -> None:
+        while not stop.is_set():
+            speeds.append(abs(bus.get(3, 'present_velocity')))
+            stop.wait(0.01)
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        child = spawn('calibrate', '--params', str(params), '--find-stops', 'grip', '--current',
+                      '0.3', '--speed', '1.0', '--gripper-open', 'low', '--yes')
+        try:
+            child.expect(r'grip: stops at (\S+) and (\S+)', timeout=60.0)
+            low, high = float(child.match.group(1)), float(child.match.group(2))
+            status, output = finish(child)
+        finally:
+            child.close(force=True)
+    finally:
+        stop.set()
+        watcher.join()
+    assert status == 0, output
+    assert abs(low + 0.4) < 0.01 and abs(high - 1.6) < 0.01
+    # 1.0 rad/s is 42 of the XL330's 0.229 rpm (twice that allowed for the bounce off a stop);
+    # a move timed at 42 ms instead reaches about 255.
+    assert speeds and max(speeds) <= 84, max(speeds)
+    assert (bus.get(3, 'drive_mode'), bus.get(3, 'profile_velocity')) == (4, 2000)
+
+
 def test_a_bad_file_is_refused_with_the_drivers_message(tmp_path: pathlib.Path) -> None:
     params = tmp_path / 'bad.yaml'
     params.write_text(PARAMS.format(port='/dev/null').replace('id: 2', 'id: 1'))
