@@ -14,10 +14,10 @@ import re
 import subprocess
 from typing import Optional
 
+from conditions import wait_until
 from dxl_servo_driver import serial_port
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.serial_port import open_port
-from conditions import wait_until
 from node_harness import Client, NodeHarness, sim_params
 from processes import (
     node_executable, NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)
@@ -136,11 +136,12 @@ def found_latency(output: str, declared: float) -> float:
 def test_a_scanned_file_runs_at_the_rate_its_bus_carries(workdir: pathlib.Path,
                                                          domain_id: int) -> None:
     """
-    Issue 38: `scan` wrote `latency_timer: 16.0` for a pty, and the node on that file said
-    "loop_rate 100 Hz is above what the bus can carry (54 Hz)", then ran at 100 Hz.
+    Scan's file and the node's bus limit carry the latency timer measured (issue 38).
 
-    Now scan writes the timer it measured, and the node's bus limit counts the timer it
-    measures itself, whatever the file says.
+    `scan` wrote `latency_timer: 16.0` for a pty, and the node on that file said "loop_rate
+    100 Hz is above what the bus can carry (54 Hz)", then ran at 100 Hz. Now scan writes the
+    timer it measured, and the node's bus limit counts the timer it measures itself, whatever
+    the file says.
     """
     link = str(workdir / 'ttyDXL')
     bus = VirtualBusProcess(ids=(1, 2, 3, 4, 5, 6), baud_bps=1000000, link=link)

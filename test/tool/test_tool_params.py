@@ -8,7 +8,7 @@ bad file or an unknown joint is one error line, exit 2. The installed `dxl` on v
 """
 
 import pathlib
-from typing import Tuple
+from typing import List, Tuple
 
 from dxl_cli import dxl, one_error_line
 from dxl_servo_driver.tool.common import EXIT_FAILED, EXIT_USAGE
@@ -118,9 +118,9 @@ def test_port_and_baud_given_win_over_the_files(arm: Tuple[VirtualBusProcess, pa
     (['--port', '{port}', 'shoulder'], "'shoulder' is not an id: a joint name needs --params"),
     ([str(SHOULDER)], '--port is needed (or --params FILE'),
 ])
-def test_a_bad_file_or_joint_is_one_line_and_exit_2(arm: Tuple[VirtualBusProcess, pathlib.Path],
-                                                     tmp_path: pathlib.Path, args: list,
-                                                     said: str) -> None:
+def test_a_bad_file_or_joint_is_one_line_and_exit_2(
+        arm: Tuple[VirtualBusProcess, pathlib.Path], tmp_path: pathlib.Path, args: List[str],
+        said: str) -> None:
     bus, params = arm
     bad = tmp_path / 'bad.yaml'
     bad.write_text(params.read_text().replace('operating_mode: position}',
