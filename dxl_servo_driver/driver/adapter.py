@@ -35,7 +35,9 @@ from dxl_servo_driver.serial_port import adapter_latency_timer_ms
 # Pings timed (of the first servo that answers). The largest delays count, since an FTDI chip
 # hands its buffer over anywhere from at once to a whole timer after the data came; but not the
 # very largest alone: one answer held up by the host (a loaded machine that ran neither end of a
-# pty for 14 ms, seen) says nothing of the adapter. So the second largest of these.
+# pty for 14 ms, seen) says nothing of the adapter. So the second largest of these says the
+# timer; once it says the file's is too short, the largest sets the deadlines (generous costs
+# nothing while replies come).
 TIMED_PINGS = 10
 # Servos tried for an answer before giving up on timing (a silent one costs a whole listen).
 SERVOS_TRIED = 3
@@ -59,7 +61,8 @@ class Measured:
     how: str                  # LINUX or TIMED
     servo_id: Optional[int] = None   # timed: whose answers
     delay_s: float = 0.0      # timed: the delay after its wire time all answers but one kept
-    spread_s: float = 0.0     # timed: that delay less the least one
+    spread_s: float = 0.0     # timed: the largest delay less the least one
+    largest_s: float = 0.0    # timed: the largest delay
 
     def describe(self) -> str:
         """Return where the value comes from, in a few words (a parameter file's comment)."""
@@ -90,7 +93,8 @@ def measure_latency_timer(port: str, bus: Bus, servo_ids: Sequence[int]) -> Opti
     servo_id, delays = timed
     delays.sort()
     delay_s = delays[-2] if len(delays) > 1 else delays[-1]
-    return Measured(implied_timer_ms(delay_s), TIMED, servo_id, delay_s, delay_s - delays[0])
+    return Measured(implied_timer_ms(delay_s), TIMED, servo_id, delay_s,
+                    delays[-1] - delays[0], delays[-1])
 
 
 def settle_latency_timer(ctx: Context, servos: Sequence[Servo]) -> None:
@@ -128,18 +132,18 @@ def settle_latency_timer(ctx: Context, servos: Sequence[Servo]) -> None:
         else:
             ctx.link.adapter_latency_s = bus.latency_timer_s
         return
-    # Never below the file's.
-    implied_ms = max(declared_ms, measured.timer_ms)
+    # From the largest delay, never below the file's.
+    implied_ms = max(declared_ms, implied_timer_ms(measured.largest_s))
     bus.latency_timer_s = implied_ms / 1000.0
     ctx.link.adapter_latency_s = bus.latency_timer_s
     # Answers that came this far apart will again: the deadlines' slack starts wide enough for
     # that spread (the bus narrows it again once nothing comes late for long).
     bus.slack_s = min(MAX_DEADLINE_SLACK_S, max(bus.slack_s, DEADLINE_SLACK_S + measured.spread_s))
-    late_ms = delay_s * 1000.0 - declared_ms
-    ctx.log.warn(f'replies arrive ~{late_ms:.0f} ms late (id {measured.servo_id} answered '
-                 f'{delay_s * 1000.0:.1f} ms after its wire time, where latency_timer is '
-                 f"{declared_ms:g} ms): the adapter's latency timer is probably "
-                 f'{implied_ms:g} ms; {UDEV_HINT.format(ms=implied_ms)}. Running with '
+    largest_ms = measured.largest_s * 1000.0
+    ctx.log.warn(f'replies arrive ~{largest_ms - declared_ms:.0f} ms late (id '
+                 f'{measured.servo_id} answered {largest_ms:.1f} ms after its wire time, where '
+                 f"latency_timer is {declared_ms:g} ms): the adapter's latency timer is "
+                 f'probably {implied_ms:g} ms; {UDEV_HINT.format(ms=implied_ms)}. Running with '
                  f'{implied_ms:g} ms.')
 
 
