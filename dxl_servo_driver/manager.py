@@ -195,9 +195,17 @@ class Manager:
 
     @property
     def latency_timer_s(self) -> float:
-        """Return the adapter's latency timer in force (the file's, or the adapter's real one)."""
-        bus = self._ctx.link.bus
-        return bus.latency_timer_s if bus is not None else self.config.latency_timer / 1000.0
+        """
+        Return the adapter's latency timer, as configure found it (driver/adapter.py).
+
+        Linux's word for it, or the one a ping's answer implies; before that (or where nothing
+        answered) the bus's timer in force, else the file's. What the bus limit counts.
+        """
+        link = self._ctx.link
+        if link.adapter_latency_s is not None:
+            return link.adapter_latency_s
+        return (link.bus.latency_timer_s if link.bus is not None
+                else self.config.latency_timer / 1000.0)
 
     @property
     def read_mode_in_use(self) -> str:

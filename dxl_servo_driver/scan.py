@@ -25,7 +25,9 @@ stderr: the estimate first; then on a terminal one progress line redrawn (baud k
 protocol, time elapsed, about how long is left, servos found so far), elsewhere one line a step;
 notes and warnings. stdout: one line per servo found, saying its protocol. With --output it
 writes a parameter file the driver node runs as it is (a joint on the other protocol than the
-bus's says so: `<joint>.protocol`). Ctrl-C (SIGINT) stops it and keeps what was found: said,
+bus's says so: `<joint>.protocol`), its `latency_timer` the adapter's as the node measures it at
+configure (driver/adapter.measure_latency_timer: Linux's word, else the found servos' answers
+timed). Ctrl-C (SIGINT) stops it and keeps what was found: said,
 written to --output if asked, status 130.
 
 Exit status: 0 servos found (and the file written), 1 no servo found, 2 bad arguments, 3 the port
@@ -51,6 +53,7 @@ from dxl_servo_driver import config
 from dxl_servo_driver import models
 from dxl_servo_driver import timerslack
 from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, FRAMERS, sweep_spacing_s
+from dxl_servo_driver.driver.adapter import LINUX, measure_latency_timer, Measured
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import TORQUE_MODE
@@ -616,7 +619,7 @@ def build_parameters(port: str, servos: Sequence[FoundServo],
         raise ValueError('no servo found: nothing to write')
     baud_bps = choose_baud(servos)
     params: Dict[str, Any] = {'port': port, 'baud_rate': baud_bps}
-    # The node's reply deadlines need it: what the adapter says, else the Linux default.
+    # The node's reply deadlines need it: the adapter's as measured, else the Linux default.
     params['latency_timer'] = float(latency_timer_ms if latency_timer_ms is not None
                                     else LINUX_LATENCY_TIMER_MS)
     comments = [describe(servo) for servo in servos]
@@ -671,9 +674,16 @@ def _yaml_string(text: str) -> str:
     return "'" + text.replace("'", "''") + "'"
 
 
+NOT_MEASURED = 'not measured here: the Linux default (1 with our udev rule)'
+
+
 def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], header: str,
-                          latency_read: bool = True) -> str:
-    """Return the ROS 2 parameter file (`/**: ros__parameters:`) for build_parameters' output."""
+                          latency_source: str = 'read from the adapter') -> str:
+    """
+    Return the ROS 2 parameter file (`/**: ros__parameters:`) for build_parameters' output.
+
+    latency_source: where its latency_timer came from, said in its comment (Measured.describe).
+    """
     lines = [f'# {header}']
     lines.extend(f'#   {comment}' for comment in comments)
     lines.append('/**:')
@@ -683,9 +693,7 @@ def render_parameter_file(params: Dict[str, Any], comments: Sequence[str], heade
     if 'protocol' in params:
         lines.append(f'    protocol: {params["protocol"]}')
     if 'latency_timer' in params:
-        source = 'read from the adapter' if latency_read else \
-            'not readable here: the Linux default (1 with our udev rule)'
-        lines.append(f'    latency_timer: {params["latency_timer"]}  # ms, {source}')
+        lines.append(f'    latency_timer: {params["latency_timer"]}  # ms, {latency_source}')
     lines.append(f'    joints: [{", ".join(params["joints"])}]')
     for joint in params['joints']:
         lines.append(f'    {joint}:')
@@ -793,10 +801,29 @@ def _report_bauds(servos: Sequence[FoundServo], err: TextIO, prog: str) -> None:
               'at one baud rate, so the node can reach only one group', file=err)
 
 
-def _output(args: argparse.Namespace, result: ScanResult, latency_ms: Optional[float],
+def measure_latency(bus: Bus, port: str, servos: Sequence[FoundServo]) -> Optional[Measured]:
+    """
+    Return the adapter's latency timer as the node will measure it, None where it cannot be.
+
+    The node's own measurement (driver/adapter.measure_latency_timer): Linux's word for it, else
+    pings of the servos the file lists (at the baud rate it chooses, each in its protocol) timed.
+    """
+    baud_bps = choose_baud(servos)
+    listed = [servo for servo in servos if servo.baud_bps == baud_bps and servo.known_model]
+    set_baud(bus, baud_bps)
+    for servo in listed:
+        bus.speak(servo.servo_id, FRAMERS[servo.protocol])
+    try:
+        return measure_latency_timer(port, bus, [servo.servo_id for servo in listed])
+    except (CommError, PortError):
+        return None
+
+
+def _output(args: argparse.Namespace, result: ScanResult, latency: Optional[Measured],
             err: TextIO, prog: str) -> int:
     try:
-        params, comments = build_parameters(args.port, result.servos, latency_ms)
+        params, comments = build_parameters(args.port, result.servos,
+                                            None if latency is None else latency.timer_ms)
     except (ValueError, config.ConfigError) as exc:  # ConfigError is a ValueError too
         print(f'{prog}: error: {args.output} not written: {exc}', file=err)
         return EXIT_OUTPUT
@@ -804,8 +831,8 @@ def _output(args: argparse.Namespace, result: ScanResult, latency_ms: Optional[f
     header = (f'Written by `{prog} --port {args.port}` at {stamp}; run it with '
               f'`ros2 run dxl_servo_driver node --ros-args --params-file {args.output}`.')
     try:
-        _write_file(args.output, render_parameter_file(params, comments, header,
-                                                       latency_ms is not None))
+        _write_file(args.output, render_parameter_file(
+            params, comments, header, NOT_MEASURED if latency is None else latency.describe()))
     except OSError as exc:
         print(f'{prog}: error: cannot write {args.output}: {exc.strerror or exc}', file=err)
         return EXIT_OUTPUT
@@ -976,10 +1003,14 @@ def run(args: argparse.Namespace, prog: str = 'scan', trace: str = '') -> int:
     progress = Progress(err, out, steps, _is_terminal(err))
     result = ScanResult([], [], [])
     interrupted = False
+    latency = None if latency_ms is None else Measured(latency_ms, LINUX)
     try:
         scan_bus(bus, bauds, args.ids, progress.line, lambda servo: progress.found(
             describe(servo)), asked, (sweep_latency_ms + SWEEP_SLACK_MS) / 1000.0,
             args.stop_at_first, bauds_1, progress.step, result)
+        if args.output is not None and result.servos:
+            # The file's latency_timer: what the node will find at configure.
+            latency = measure_latency(bus, args.port, result.servos)
     except PortError as exc:
         progress.close()
         print(f'{prog}: error: {exc}', file=err)
@@ -996,7 +1027,7 @@ def run(args: argparse.Namespace, prog: str = 'scan', trace: str = '') -> int:
         print(f'{prog}: interrupted: found {_plural(len(result.servos), "servo")} (tried '
               f'{tried} bps)', file=err)
         if result.servos and args.output is not None:
-            status = _output(args, result, latency_ms, err, prog)
+            status = _output(args, result, latency, err, prog)
             if status != EXIT_OK:
                 return status
         return EXIT_INTERRUPTED
@@ -1010,7 +1041,7 @@ def run(args: argparse.Namespace, prog: str = 'scan', trace: str = '') -> int:
     print(f'{prog}: found {_plural(len(result.servos), "servo")} (tried {tried} bps)', file=err)
     _report_bauds(result.servos, err, prog)
     if args.output is not None:
-        return _output(args, result, latency_ms, err, prog)
+        return _output(args, result, latency, err, prog)
     return EXIT_OK
 
 

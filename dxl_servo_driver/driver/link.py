@@ -32,6 +32,9 @@ class Link:
     def __init__(self, attempts: int, should_stop: Callable[[], bool],
                  stale: StaleGuard) -> None:
         self.bus: Optional[Bus] = None
+        # The adapter's latency timer as configure found it (driver/adapter.py), which the bus
+        # limit counts; None until found (then the bus's timer in force is counted).
+        self.adapter_latency_s: Optional[float] = None
         # Asked between attempts: a signal stops configure and activate promptly.
         self.should_stop = should_stop
         self._attempts = attempts

@@ -5,6 +5,9 @@
   dxl restore ID FILE [--identity] --port P [--baud B]
   dxl diff ID FILE --port P            dxl diff ID --other ID2 --port P
 
+(or --params FILE for the port, baud rate and protocol, and joints' names for ids:
+session.bus_settings).
+
 A backup holds the servo's model (name and number), firmware, and every writable EEPROM item
 (plus the RAM groups asked for) by name, raw and in SI units where the item has one. The raw
 value is what is restored; the SI value is there to read, and when an edited file's SI value no
@@ -27,13 +30,13 @@ from dxl_servo_driver.models.base import Item, Model
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_FAILED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.servo import (
-    check_write, port_guard, read_items, servo_id_arg, si_unit, torque_off, value_text,
-    write_verified)
+    check_write, port_guard, read_items, si_unit, torque_off, value_text, write_verified)
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect, from_si, ServoLink, to_si)
+    add_bus_arguments, bus_from_args, connect, from_si, servo_ref, ServoLink, to_si)
 import yaml  # type: ignore[import-untyped]
 
 FORMAT = 1
+ID_HELP = "the servo id (or, with --params, its joint's name)"
 IDENTITY = ('id', 'baud_rate')
 # Never in a backup: the tool does not write it (servo.NOT_WRITTEN).
 LEFT_OUT = ('protocol_version',)
@@ -72,7 +75,7 @@ def register(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]') -> None
         "Save a servo's writable EEPROM items (and the RAM groups asked for) to a YAML file: "
         'model, firmware, each item raw and in SI units.',
         'dxl backup 3 elbow.yaml --ram gains,profiles --port /dev/ttyDXL --baud 1000000')
-    parser.add_argument('id', type=servo_id_arg, metavar='ID')
+    parser.add_argument('id', type=servo_ref, metavar='ID', help=ID_HELP)
     parser.add_argument('file', metavar='FILE')
     parser.add_argument('--ram', type=_ram_groups, default=[], metavar='GROUPS',
                         help=f'RAM groups to save too, comma-separated: {", ".join(RAM_GROUPS)}')
@@ -85,7 +88,7 @@ def register(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]') -> None
         'first, then only the items that differ are written (EEPROM with torque off, put back '
         'after) and read back.',
         'dxl restore 3 elbow.yaml --port /dev/ttyDXL --baud 1000000')
-    parser.add_argument('id', type=servo_id_arg, metavar='ID')
+    parser.add_argument('id', type=servo_ref, metavar='ID', help=ID_HELP)
     parser.add_argument('file', metavar='FILE')
     parser.add_argument('--identity', action='store_true',
                         help="restore the file's id and baud rate too")
@@ -97,9 +100,9 @@ def register(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]') -> None
         'Print the items that differ between a servo and a backup file (or another servo of '
         'the same model). Exit status 1 when something differs.',
         'dxl diff 3 elbow.yaml --port /dev/ttyDXL', 'dxl diff 3 --other 4 --port /dev/ttyDXL')
-    parser.add_argument('id', type=servo_id_arg, metavar='ID')
+    parser.add_argument('id', type=servo_ref, metavar='ID', help=ID_HELP)
     parser.add_argument('file', nargs='?', metavar='FILE')
-    parser.add_argument('--other', type=servo_id_arg, metavar='ID2',
+    parser.add_argument('--other', type=servo_ref, metavar='ID2',
                         help='compare with this servo instead of a file')
     parser.add_argument('--identity', action='store_true',
                         help='compare the id and baud rate too')

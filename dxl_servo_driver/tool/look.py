@@ -27,7 +27,7 @@ from dxl_servo_driver.models.base import Item, Model
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect_retried, to_si)
+    add_bus_arguments, bus_from_args, bus_settings, connect_retried, servo_ref, to_si)
 
 SPARK = '▁▂▃▄▅▆▇█'
 SPARK_WIDTH = 24
@@ -205,8 +205,9 @@ def run(args: argparse.Namespace) -> int:
     names = [name.strip() for name in args.items.split(',') if name.strip()]
     if not names or len(set(names)) != len(names):
         raise ToolError(f'--items {args.items!r}: name each item once', EXIT_USAGE)
+    bus_settings(args)   # joint names become ids
     if len(set(args.ids)) != len(args.ids):
-        raise ToolError('--ids: each id once', EXIT_USAGE)
+        raise ToolError('--ids: each servo once', EXIT_USAGE)
     if args.rate is not None and not 0.0 < args.rate <= 10000.0:
         raise ToolError('--rate must be in (0, 10000] Hz', EXIT_USAGE)
     bus = bus_from_args(args)
@@ -288,9 +289,10 @@ def register(subparsers: 'argparse._SubParsersAction[argparse.ArgumentParser]') 
         subparsers, 'watch', 'a live table of registers of several servos (SI), sparklines, CSV',
         __doc__.strip().splitlines()[0],
         'dxl watch --port /dev/ttyUSB0 --baud 1000000 --ids 1 2 3 '
-        '--items present_position,present_current --csv log.csv')
-    parser.add_argument('--ids', type=int, nargs='+', required=True, metavar='ID',
-                        help='the servos watched')
+        '--items present_position,present_current --csv log.csv',
+        'dxl watch --ids shoulder elbow --params my_arm.yaml')
+    parser.add_argument('--ids', type=servo_ref, nargs='+', required=True, metavar='ID',
+                        help="the servos watched (ids or, with --params, joints' names)")
     parser.add_argument('--items', default=DEFAULT_ITEMS, metavar='NAME,...',
                         help=f'items of the control table, snake_case (default {DEFAULT_ITEMS})')
     parser.add_argument('--rate', type=float, metavar='HZ',

@@ -27,7 +27,7 @@ from dxl_servo_driver.tool.common import (
     add_command, EXIT_FAILED, EXIT_OK, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import (
     add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
-    Saved, ServoLink, to_si, uninterrupted, write_retried)
+    Saved, servo_ref, ServoLink, to_si, uninterrupted, write_retried)
 
 PASS, FAIL, SKIP = 'PASS', 'FAIL', 'SKIP'
 MOVE_TIMEOUT_S = 3.0
@@ -216,8 +216,10 @@ def register(subparsers: 'argparse._SubParsersAction[argparse.ArgumentParser]') 
     parser = add_command(
         subparsers, 'selftest', 'hardware errors, voltage, temperature, a small move each way',
         __doc__.strip().splitlines()[0],
-        'dxl selftest 1 --port /dev/ttyUSB0 --baud 1000000 --current 0.2')
-    parser.add_argument('id', type=int, help='servo id')
+        'dxl selftest 1 --port /dev/ttyUSB0 --baud 1000000 --current 0.2',
+        'dxl selftest shoulder --params my_arm.yaml')
+    parser.add_argument('id', type=servo_ref, metavar='ID',
+                        help="servo id (or, with --params, its joint's name)")
     parser.add_argument('--degrees', type=float, default=5.0,
                         help='how far each move goes (default 5)')
     parser.add_argument('--current', type=float, default=0.3, metavar='A',

@@ -7,6 +7,9 @@ One servo: `dxl info`, `get`, `set`, `torque`, `led`, `reboot`, `reset`.
   dxl torque ID on|off --port P          dxl led ID on|off --port P
   dxl reboot ID --port P                 dxl reset ID [--level all|keep-id|keep-id-baud] [--yes]
 
+Each also takes --params FILE (the driver's parameter file) for the port, baud rate and protocol,
+and ID may then be a joint's name (session.bus_settings).
+
 Values are shown raw and, where the item has a unit, in SI beside it (session.to_si). `set`
 takes SI by default where the item has a unit (rad, rad/s, A, V, s ...), raw with --raw or where
 it has none; Baud Rate also takes a rate in bps, Operating Mode a mode's name. Every write is
@@ -27,10 +30,10 @@ from typing import Callable, Dict, Iterator, List, Optional, Sequence
 from dxl_servo_driver import registers
 from dxl_servo_driver.errors import CommError, PortError, StatusError
 from dxl_servo_driver.models.base import Item, Model
-from dxl_servo_driver.protocol import MAX_ID
 from dxl_servo_driver.tool.common import EXIT_FAILED, EXIT_OK, EXIT_PORT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect, FACTORY_BAUD, from_si, ServoLink, to_si)
+    add_bus_arguments, bus_from_args, connect, FACTORY_BAUD, from_si, servo_ref, ServoLink,
+    to_si)
 
 # Items read together when they lie this close (bytes between them read and dropped): a table
 # read in a few transactions rather than one per item.
@@ -281,19 +284,13 @@ def port_guard(command: Command) -> Command:
     return guarded
 
 
-def servo_id_arg(text: str) -> int:
-    value = int(text)
-    if not 0 <= value <= MAX_ID:
-        raise argparse.ArgumentTypeError(f'{value} is not an id (0..{MAX_ID})')
-    return value
-
-
 def _parser(sub: 'argparse._SubParsersAction[argparse.ArgumentParser]', name: str,
             help_text: str, example: str) -> argparse.ArgumentParser:
     parser = sub.add_parser(name, help=help_text, description=help_text,
                             epilog=f'example:\n  {example}',
                             formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('id', type=servo_id_arg, metavar='ID', help='the servo id')
+    parser.add_argument('id', type=servo_ref, metavar='ID',
+                        help="the servo id (or, with --params, its joint's name)")
     return parser
 
 

@@ -2,10 +2,15 @@
 What the `dxl` commands talk to: a bus on a port, one servo on it with its table, SI values.
 
 `open_bus` opens the port the way the driver does (a serial device or `virtual_bus`'s pty) and
-turns every way it can fail into a ToolError saying so. `connect` pings one servo, reads its
-firmware version and picks its model's control table; a `ServoLink` then reads and writes items by
-their names (the manual's, snake_case), raw or in SI units (`to_si`, `from_si`: the item's unit as
-the table states it, e.g. '0.229 rpm' read as rad/s, 'pulse' as rad, '2.69 mA' as A).
+turns every way it can fail into a ToolError saying so. A command's bus options
+(`add_bus_arguments`) are --port, --baud, --protocol and --params FILE: the driver's parameter
+file, from which the port, baud rate and protocol (and each joint's protocol) are taken where
+--port, --baud and --protocol do not say them, and in which a servo may be named by its joint
+(`shoulder` for its joint's id; `bus_settings` resolves them all before the bus is opened).
+`connect` pings one servo, reads its firmware version and picks its model's control table; a
+`ServoLink` then reads and writes items by their names (the manual's, snake_case), raw or in SI
+units (`to_si`, `from_si`: the item's unit as the table states it, e.g. '0.229 rpm' read as
+rad/s, 'pulse' as rad, '2.69 mA' as A).
 """
 
 import argparse
@@ -14,13 +19,16 @@ from dataclasses import dataclass
 import math
 import signal
 import threading
-from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, TypeVar
+from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, TypeVar, Union
 
+from dxl_servo_driver import config as driver_config
 from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus, FRAMERS
-from dxl_servo_driver.errors import CommError, PortError
+from dxl_servo_driver.errors import CommError, ConfigurationError, PortError
 from dxl_servo_driver.models.base import Item, Model, ModelError
+from dxl_servo_driver.protocol import MAX_ID
 from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
+from dxl_servo_driver.tool import yaml_edit
 from dxl_servo_driver.tool.common import EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE, ToolError
 from dxl_servo_driver.wire import BusTrace
 
@@ -37,20 +45,123 @@ _ABSOLUTE = ('position', 'position_limit', 'position_trajectory')
 _MANUAL_TABLE = models.model_for(1030)
 
 
-def add_bus_arguments(parser: argparse.ArgumentParser, baud: Optional[int] = FACTORY_BAUD,
+ServoRef = Union[int, str]   # a servo as a command line gives it: an id, or its joint's name
+
+
+def servo_ref(text: str) -> ServoRef:
+    """Return a servo argument: an id (0..MAX_ID), or a joint name for --params to resolve."""
+    if text.strip().lstrip('+-').isdigit():
+        value = int(text)
+        if not 0 <= value <= MAX_ID:
+            raise argparse.ArgumentTypeError(f'{value} is not an id (0..{MAX_ID})')
+        return value
+    if not text:
+        raise argparse.ArgumentTypeError('an empty name is neither an id nor a joint')
+    return text
+
+
+# The servo arguments a command may have (an id, --other, --ids): joint names become ids.
+_SERVO_ARGS = ('id', 'other', 'ids')
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, baud: int = FACTORY_BAUD,
                       protocol: bool = True) -> None:
-    """Add --port, --baud and (unless told not to) --protocol to a command's parser."""
-    parser.add_argument('--port', required=True,
-                        help='serial device (e.g. /dev/ttyUSB0) or a virtual_bus pty')
-    parser.add_argument('--baud', type=int, default=baud, metavar='BPS',
-                        help=f'baud rate of the bus (default {baud})' if baud else
-                        'baud rate of the bus')
+    """Add --port, --baud, --params and (unless told not to) --protocol to a command's parser."""
+    parser.add_argument('--port',
+                        help='serial device (e.g. /dev/ttyUSB0) or a virtual_bus pty (needed '
+                        "unless --params: the file's port)")
+    parser.add_argument('--baud', type=int, metavar='BPS',
+                        help=f"baud rate of the bus (default: --params' baud_rate, else {baud})")
     if protocol:
-        parser.add_argument('--protocol', type=float, choices=tuple(FRAMERS), default=2.0,
-                            help='protocol the servos speak (default 2.0)')
+        parser.add_argument('--protocol', type=float, choices=tuple(FRAMERS),
+                            help="protocol the servos speak (default: --params' protocol and "
+                            "each joint's, else 2.0)")
+    parser.add_argument('--params', metavar='FILE',
+                        help="the driver's parameter file: its port, baud rate and protocol "
+                        'where --port, --baud and --protocol do not say them; a servo may then '
+                        'be named by its joint')
     parser.add_argument('--trace', default='', metavar='FILE',
                         help='write every frame sent and received to FILE (`dxl trace FILE` '
                         'decodes it)')
+    parser.set_defaults(default_baud=baud, bus_settings=None)
+
+
+def load_params(path: str) -> driver_config.DriverConfig:
+    """Return a driver parameter file's configuration; ToolError (exit 2) saying what is bad."""
+    try:
+        driver_config.check_parameter_file(path)
+        with open(path, encoding='utf-8') as stream:
+            text = stream.read()
+        return driver_config.validate(yaml_edit.parameters_of(text))
+    except (ConfigurationError, yaml_edit.EditError, OSError) as exc:
+        said = str(exc)
+        raise ToolError(said if path in said else f'--params {path}: {said}', EXIT_USAGE) \
+            from None
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """Where a command's servos are: the port, baud rate and protocol, and the file's joints."""
+
+    port: str
+    baud_bps: int
+    protocol: float
+    # id -> protocol of every servo of the --params file (when --protocol did not say one).
+    protocols: Dict[int, float]
+
+
+def bus_settings(args: argparse.Namespace) -> BusSettings:
+    """
+    Return the bus a command's arguments name, its joint names turned into ids in args.
+
+    --port, --baud and --protocol win; what they leave unsaid comes from --params' file, else
+    the defaults (FACTORY_BAUD, Protocol 2.0). Done once (kept in args.bus_settings). ToolError
+    (exit 2): no port at all, an unreadable or invalid file, a joint the file does not have.
+    """
+    if getattr(args, 'bus_settings', None) is not None:
+        return args.bus_settings
+    path = getattr(args, 'params', None)
+    config = load_params(path) if path else None
+    for name in _SERVO_ARGS:
+        value = getattr(args, name, None)
+        if isinstance(value, list):
+            setattr(args, name, [_servo_id(item, config, path) for item in value])
+        elif value is not None:
+            setattr(args, name, _servo_id(value, config, path))
+    port = args.port or (config.port if config is not None else None)
+    if not port:
+        raise ToolError("--port is needed (or --params FILE: the port of the driver's "
+                        'parameter file)', EXIT_USAGE)
+    protocol = getattr(args, 'protocol', None)
+    protocols: Dict[int, float] = {}
+    if config is not None and protocol is None:
+        for joint in config.joints:
+            for servo_id in (joint.servo_id, joint.secondary_id):
+                if servo_id is not None:
+                    protocols[servo_id] = joint.protocol
+    settings = BusSettings(
+        port, args.baud or (config.baud_rate if config is not None else args.default_baud),
+        protocol if protocol is not None else (config.protocol if config is not None else 2.0),
+        protocols)
+    args.port, args.baud, args.bus_settings = settings.port, settings.baud_bps, settings
+    if hasattr(args, 'protocol'):
+        args.protocol = settings.protocol
+    return settings
+
+
+def _servo_id(value: ServoRef, config: Optional[driver_config.DriverConfig],
+              path: Optional[str]) -> int:
+    """Return the id a servo argument names (a joint's name looked up in --params' file)."""
+    if isinstance(value, int):
+        return value
+    if config is None:
+        raise ToolError(f'{value!r} is not an id: a joint name needs --params FILE', EXIT_USAGE)
+    try:
+        return config.joint(value).servo_id
+    except KeyError:
+        raise ToolError(f'no joint {value!r} in {path} (its joints: '
+                        f'{", ".join(joint.name for joint in config.joints)})',
+                        EXIT_USAGE) from None
 
 
 def open_bus(port: str, baud_bps: int, protocol: float = 2.0,
@@ -78,9 +189,13 @@ def open_bus(port: str, baud_bps: int, protocol: float = 2.0,
 
 
 def bus_from_args(args: argparse.Namespace) -> Bus:
-    """Open the bus the command's --port, --baud, --protocol and --trace name."""
-    return open_bus(args.port, args.baud, getattr(args, 'protocol', 2.0),
-                    trace=getattr(args, 'trace', ''))
+    """Open the bus the command's --port, --baud, --protocol, --params and --trace name."""
+    settings = bus_settings(args)
+    bus = open_bus(settings.port, settings.baud_bps, settings.protocol,
+                   trace=getattr(args, 'trace', ''))
+    for servo_id, protocol in settings.protocols.items():
+        bus.speak(servo_id, FRAMERS[protocol])
+    return bus
 
 
 @contextlib.contextmanager

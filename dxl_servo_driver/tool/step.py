@@ -27,7 +27,7 @@ from dxl_servo_driver.models.base import Item
 from dxl_servo_driver.tool.common import add_command, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (
     add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
-    retried, Saved, ServoLink, to_si, uninterrupted, write_retried)
+    retried, Saved, servo_ref, ServoLink, to_si, uninterrupted, write_retried)
 
 GAIN_KEYS = {'p': 'position_p_gain', 'i': 'position_i_gain', 'd': 'position_d_gain'}
 MODES = ('position', 'extended_position', 'current_based_position')
@@ -376,8 +376,11 @@ def register(subparsers: 'argparse._SubParsersAction[argparse.ArgumentParser]') 
         subparsers, 'step', 'a step of goal position: response, rise/overshoot/settling, PNG',
         __doc__.strip().splitlines()[0],
         'dxl step 1 --port /dev/ttyUSB0 --baud 1000000 --from 0 --to 0.5 '
-        '--gains p=400 p=1600,d=400 --png step.png')
-    parser.add_argument('id', type=int, help='servo id')
+        '--gains p=400 p=1600,d=400 --png step.png',
+        'dxl step shoulder --to 0.5 --png step.png --params my_arm.yaml   # port, baud: the '
+        "file's")
+    parser.add_argument('id', type=servo_ref, metavar='ID',
+                        help="servo id (or, with --params, its joint's name)")
     parser.add_argument('--to', type=float, required=True, metavar='RAD',
                         help='goal of the step (rad, from the centre of the table)')
     parser.add_argument('--from', dest='start', type=float, metavar='RAD',

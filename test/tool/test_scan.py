@@ -1,8 +1,10 @@
 """`scan` against virtual_bus subprocesses on pseudo-terminals, and its pure helpers."""
 
 import itertools
+import math
 import os
 import pathlib
+import re
 import subprocess
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
@@ -180,9 +182,10 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
     assert status == scan.EXIT_OK
     assert len(out) == 2
     flat = flatten(yaml.safe_load(output.read_text()))
+    # The pty's answers timed (test_the_file_carries_the_latency_measured holds its value).
+    assert flat.pop('latency_timer') >= 1.0
     assert flat == {'port': str(vb.link), 'baud_rate': 1000000, 'protocol': 2.0,
                     'joints': ['joint_4', 'joint_9'],
-                    'latency_timer': 16.0,   # a pty has no latency timer: the Linux default
                     'joint_4.id': 4, 'joint_4.operating_mode': 'position',
                     'joint_4.model': 'XM430-W210',
                     'joint_9.id': 9, 'joint_9.operating_mode': 'current_based_position',
@@ -192,6 +195,36 @@ def test_the_output_file_carries_each_servos_mode(start: Starter, capsys: pytest
     parsed = config.validate(flat)
     assert parsed.joint('joint_9').operating_mode == 'current_based_position'
     assert not list(tmp_path.glob('bus.yaml.tmp*'))
+
+
+@pytest.mark.parametrize('latency_ms', [0, 5])
+def test_the_file_carries_the_latency_measured(virtual_bus: StartVirtualBus,
+                                               capsys: pytest.CaptureFixture,
+                                               tmp_path: pathlib.Path, latency_ms: int) -> None:
+    # A pty has no sysfs latency timer: scan times the servos' answers as the node does
+    # (driver/adapter.measure_latency_timer) and writes the timer they imply, not Linux's 16 ms.
+    # The simulated adapter holds each answer latency_ms (wire timing).
+    vb = virtual_bus([3, 7], 1000000, tmp_path / 'ttyDXL', extra_args=[
+        '--timing', 'wire', '--latency-ms', str(latency_ms)])
+    output = tmp_path / 'bus.yaml'
+    status, _, err = run_scan(capsys, '--port', str(vb.link), '--baud', '1000000', '--output',
+                              str(output), '--protocol', '2.0', '--protocol-timeout-ms',
+                              SLOW_MACHINE_TIMEOUT_MS)
+    assert status == scan.EXIT_OK, err
+    text = output.read_text()
+    written = flatten(yaml.safe_load(text))['latency_timer']
+    said = re.search(r'latency_timer: ([\d.]+)  # ms, measured: id (\d+) answered within '
+                     r'([\d.]+) ms of its wire time', text)
+    assert said and float(said.group(1)) == written, text
+    assert said.group(2) in ('3', '7'), text
+    delay_ms = float(said.group(3))
+    # The answers came no sooner than the adapter let them go (with the servo's Return Delay
+    # Time, 500 us), and the timer written is the one that delay implies, to the whole ms
+    # (the least an adapter has is 1 ms); the delay is said to 0.1 ms.
+    assert delay_ms >= latency_ms, text
+    implied = {max(1.0, math.ceil(delay_ms + edge - 0.5)) for edge in (-0.05, 0.05)}
+    assert written in implied, text
+    assert latency_ms <= written < 16.0, text
 
 
 def test_scan_finds_servos_of_both_protocols_and_the_file_says_which(
