@@ -163,6 +163,18 @@ def test_the_readme_takes_unboxed_servos_to_a_calibrated_arm_the_node_runs(
     finally:
         node.stop()
 
+    # 5. The tuning line, on the same file: a step response of one of its joints.
+    step = re.search(r'`\$bin/dxl (step [^`]*)`', README)
+    assert step, 'README.md has no dxl step line'
+    child = spawn(*shlex.split(step.group(1)), cwd=str(tmp_path))
+    try:
+        status, output = finish(child)
+    finally:
+        child.close(force=True)
+    assert status == 0, output
+    png = re.search(r'--png (\S+)', step.group(1))
+    assert png and (tmp_path / png.group(1)).stat().st_size > 0, output
+
 
 # ---- the leader and the follower, without ros2 launch ----------------------------------------
 
