@@ -27,7 +27,7 @@ from dxl_servo_driver.models.base import Item, Model
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, bus_settings, connect_retried, servo_ref, to_si)
+    add_bus_arguments, bus_from_args, bus_settings, connect, servo_ref, to_si)
 
 SPARK = '▁▂▃▄▅▆▇█'
 SPARK_WIDTH = 24
@@ -213,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_from_args(args)
     csv_file: Optional[IO[str]] = None
     try:
-        tables = {servo_id: connect_retried(bus, servo_id).model for servo_id in args.ids}
+        tables = {servo_id: connect(bus, servo_id).model for servo_id in args.ids}
         reader = Reader(bus, tables, names)
         if args.csv:
             try:

@@ -26,7 +26,7 @@ from typing import List, Optional, Tuple
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_FAILED, EXIT_OK, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
+    add_bus_arguments, bus_session, connect, from_si, read_present, read_retried,
     Saved, servo_ref, ServoLink, to_si, uninterrupted, write_retried)
 
 PASS, FAIL, SKIP = 'PASS', 'FAIL', 'SKIP'
@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 < args.tolerance < args.degrees:
         raise ToolError('--tolerance must be above 0 and below --degrees', EXIT_USAGE)
     with bus_session(args) as bus:
-        link = connect_retried(bus, args.id)
+        link = connect(bus, args.id)
         print(f'id {args.id}: {link.model.name}, firmware {link.firmware}, {bus.baud_bps} bps')
         verdicts: List[Verdict] = []
         saved: Optional[Saved] = None

@@ -32,8 +32,8 @@ from dxl_servo_driver.errors import CommError, PortError, StatusError
 from dxl_servo_driver.models.base import Item, Model
 from dxl_servo_driver.tool.common import EXIT_FAILED, EXIT_OK, EXIT_PORT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_from_args, connect, FACTORY_BAUD, from_si, servo_ref, ServoLink,
-    to_si)
+    add_bus_arguments, bus_from_args, connect, FACTORY_BAUD, from_si, PATIENCE_S, servo_ref,
+    ServoLink, to_si)
 
 # Items read together when they lie this close (bytes between them read and dropped): a table
 # read in a few transactions rather than one per item.
@@ -112,7 +112,10 @@ def read_items(link: ServoLink, items: Sequence[Item]) -> Dict[str, int]:
         # A second read must agree only where nothing changes by itself: a block holding
         # Present Position or the Realtime Tick differs between two reads on a loaded host.
         steady = not any(item.area == 'ram' and item.access == 'R' for item in group)
-        for attempt in range(READ_ATTEMPTS):
+        give_up_s = time.monotonic() + PATIENCE_S
+        attempt = 0
+        while True:
+            attempt += 1
             try:
                 data = link.bus.read(link.servo_id, start, end - start, confirm=steady)
                 break
@@ -126,8 +129,9 @@ def read_items(link: ServoLink, items: Sequence[Item]) -> Dict[str, int]:
                     return
                 raise ToolError(f'id {link.servo_id}: {exc}') from exc
             except CommError as exc:
-                # A late or garbled reply (a baud rate just changed, a noisy line): again.
-                if attempt == READ_ATTEMPTS - 1:
+                # A late or garbled reply (a baud rate just changed, a noisy line, a busy
+                # computer): again, as session.retried does.
+                if attempt >= READ_ATTEMPTS and time.monotonic() >= give_up_s:
                     raise ToolError(f'id {link.servo_id}: {exc}') from exc
         for item in group:
             offset = item.address - start

@@ -19,12 +19,13 @@ from dataclasses import dataclass
 import math
 import signal
 import threading
+import time
 from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, TypeVar, Union
 
 from dxl_servo_driver import config as driver_config
 from dxl_servo_driver import models
 from dxl_servo_driver.bus import Bus, FRAMERS
-from dxl_servo_driver.errors import CommError, ConfigurationError, PortError
+from dxl_servo_driver.errors import CommError, ConfigurationError, PortError, StatusError
 from dxl_servo_driver.models.base import Item, Model, ModelError
 from dxl_servo_driver.protocol import MAX_ID
 from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
@@ -248,14 +249,15 @@ class ServoLink:
 def connect(bus: Bus, servo_id: int) -> ServoLink:
     """Ping a servo and pick its table; ToolError saying what did not answer or is unknown."""
     try:
-        number = bus.ping(servo_id)
+        number = retried(lambda: bus.ping(servo_id))
     except CommError as exc:
         raise ToolError(f'id {servo_id} does not answer at {bus.baud_bps} bps in Protocol '
                         f'{bus.default_framer.version}.0: {exc}') from exc
     try:
         where = (models.model_for(number) if number in models.SUPPORTED
                  else _MANUAL_TABLE).item('firmware_version')
-        firmware: Optional[int] = where.decode(bus.read(servo_id, where.address, where.size))
+        firmware: Optional[int] = where.decode(
+            retried(lambda: bus.read(servo_id, where.address, where.size)))
         model = models.model_for(number, firmware)
     except ModelError as exc:
         raise ToolError(f'id {servo_id}: {exc}') from exc
@@ -361,18 +363,28 @@ class Saved:
             raise ToolError(f'id {link.servo_id}: could not restore {"; ".join(failed)}')
 
 
-ATTEMPTS = 3   # a tool's transaction is tried this often before its failure counts
+# A tool's transaction is tried ATTEMPTS times, and for PATIENCE_S at least, before its failure
+# counts: its deadlines are a bus's (the latency timer and a few ms), and a busy computer can
+# hold a reply up longer than that several times in a row. A servo that really is silent costs
+# an interactive command a second.
+ATTEMPTS = 3
+PATIENCE_S = 1.0
 
 
-def retried(call: Callable[[], T], attempts: int = ATTEMPTS) -> T:
-    """Return call(), tried again on a CommError (a reply lost or corrupted) up to attempts."""
-    for attempt in range(attempts):
+def retried(call: Callable[[], T], attempts: int = ATTEMPTS,
+            patience_s: float = PATIENCE_S) -> T:
+    """Return call(), tried again on a CommError (a reply lost or corrupted); see PATIENCE_S."""
+    give_up_s = time.monotonic() + patience_s
+    tries = 0
+    while True:
+        tries += 1
         try:
             return call()
+        except StatusError:
+            raise   # the servo answered: no
         except CommError:
-            if attempt == attempts - 1:
+            if tries >= attempts and time.monotonic() >= give_up_s:
                 raise
-    raise AssertionError('unreachable')
 
 
 def read_retried(link: ServoLink, name: str) -> int:
@@ -410,14 +422,3 @@ def uninterrupted() -> Iterator[None]:
         signal.signal(signal.SIGINT, before)
     if came:
         raise KeyboardInterrupt
-
-
-def connect_retried(bus: Bus, servo_id: int, attempts: int = ATTEMPTS) -> ServoLink:
-    """Return connect(bus, servo_id), tried again when a reply was lost (not when unknown)."""
-    for attempt in range(attempts):
-        try:
-            return connect(bus, servo_id)
-        except ToolError as exc:
-            if attempt == attempts - 1 or not isinstance(exc.__cause__, CommError):
-                raise
-    raise AssertionError('unreachable')

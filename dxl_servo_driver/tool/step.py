@@ -26,7 +26,7 @@ from typing import Dict, IO, List, Optional, Sequence, Tuple
 from dxl_servo_driver.models.base import Item
 from dxl_servo_driver.tool.common import add_command, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (
-    add_bus_arguments, bus_session, connect_retried, from_si, read_present, read_retried,
+    add_bus_arguments, bus_session, connect, from_si, read_present, read_retried,
     retried, Saved, servo_ref, ServoLink, to_si, uninterrupted, write_retried)
 
 GAIN_KEYS = {'p': 'position_p_gain', 'i': 'position_i_gain', 'd': 'position_d_gain'}
@@ -311,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
     if args.duration <= 0.0 or args.duration > 60.0:
         raise ToolError('--duration must be in (0, 60] s', EXIT_USAGE)
     with bus_session(args) as bus:
-        link = connect_retried(bus, args.id)
+        link = connect(bus, args.id)
         model = link.model
         if not model.has('goal_position') or args.mode not in model.modes:
             raise ToolError(f'{model.name} has no {args.mode} mode', EXIT_USAGE)

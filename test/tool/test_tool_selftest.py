@@ -5,7 +5,7 @@ import subprocess
 from typing import Dict, List
 
 from ament_index_python.packages import get_package_prefix
-from dxl_servo_driver.tool.session import connect_retried, open_bus, retried
+from dxl_servo_driver.tool.session import connect, open_bus, retried
 from processes import StartVirtualBus
 import pytest
 
@@ -38,7 +38,7 @@ def kept(device: str) -> Dict[str, int]:
     """Return the items selftest changes for a while, read from servo 1."""
     bus = open_bus(device, 1000000)
     try:
-        link = connect_retried(bus, 1)
+        link = connect(bus, 1)
         return {name: retried(lambda: link.read(name)) for name in KEPT}
     finally:
         bus.close()

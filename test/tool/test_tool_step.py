@@ -8,7 +8,7 @@ import subprocess
 from typing import Dict, List, Tuple
 
 from ament_index_python.packages import get_package_prefix
-from dxl_servo_driver.tool.session import connect_retried, open_bus, retried
+from dxl_servo_driver.tool.session import connect, open_bus, retried
 from dxl_servo_driver.tool.step import metrics, Sample
 import numpy
 import pexpect
@@ -33,7 +33,7 @@ def servo_state(device: str) -> Dict[str, int]:
     """Return what step changes for a while and must restore, read from servo 1."""
     bus = open_bus(device, 1000000)
     try:
-        link = connect_retried(bus, 1)
+        link = connect(bus, 1)
         return {name: retried(lambda: link.read(name)) for name in (
             'torque_enable', 'operating_mode', 'position_p_gain', 'position_i_gain',
             'position_d_gain', 'profile_velocity')}
