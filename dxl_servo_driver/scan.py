@@ -828,8 +828,11 @@ def _output(args: argparse.Namespace, result: ScanResult, latency: Optional[Meas
         print(f'{prog}: error: {args.output} not written: {exc}', file=err)
         return EXIT_OUTPUT
     stamp = datetime.datetime.now().isoformat(timespec='seconds')
+    # Both ways of running the node: ROS 2 from PyPI has no ros2 command line.
     header = (f'Written by `{prog} --port {args.port}` at {stamp}; run it with '
-              f'`ros2 run dxl_servo_driver node --ros-args --params-file {args.output}`.')
+              f'`ros2 run dxl_servo_driver node --ros-args --params-file {args.output}` '
+              '(without the ros2 command line: install/dxl_servo_driver/lib/dxl_servo_driver/'
+              f'node --ros-args --params-file {args.output}).')
     try:
         _write_file(args.output, render_parameter_file(
             params, comments, header, NOT_MEASURED if latency is None else latency.describe()))
