@@ -53,20 +53,29 @@ NOT_WRITTEN = {'protocol_version': 'the servo would then answer only in the othe
                                    "change it with the manufacturer's tool"}
 
 
-def si_unit(model: Model, item: Item) -> Optional[str]:
+def si_unit(model: Model, item: Item, timed: bool = False) -> Optional[str]:
     """Return the SI unit an item is shown and set in, None where it has none (raw only)."""
     if not item.unit:
         return None
-    _, unit = to_si(model, item, 0)
+    _, unit = to_si(model, item, 0, timed)
     return None if unit == item.unit else unit
 
 
-def value_text(model: Model, item: Item, raw: int) -> str:
+def time_profile(link: ServoLink) -> bool:
+    """Return whether the servo's Drive Mode makes its profile registers times (ms) now."""
+    model = link.model
+    if model.time_profile_bit is None or not model.has('drive_mode'):
+        return False
+    drive_mode = read_items(link, [model.item('drive_mode')])['drive_mode']
+    return registers.time_based(model, drive_mode)
+
+
+def value_text(model: Model, item: Item, raw: int, timed: bool = False) -> str:
     """Return how a value is shown: raw, then SI (or the baud rate, the mode) beside it."""
     text = str(raw)
-    unit = si_unit(model, item)
+    unit = si_unit(model, item, timed)
     if unit is not None:
-        value, _ = to_si(model, item, raw)
+        value, _ = to_si(model, item, raw, timed)
         text += f' ({value:.6g} {unit})'
     elif item.name == 'baud_rate' and raw in model.bauds:
         text += f' ({model.bauds[raw]} bps)'
@@ -77,7 +86,8 @@ def value_text(model: Model, item: Item, raw: int) -> str:
     return text
 
 
-def parse_value(model: Model, item: Item, text: str, raw: bool = False) -> int:
+def parse_value(model: Model, item: Item, text: str, raw: bool = False,
+                timed: bool = False) -> int:
     """Return the raw value a command-line value means (SI unless raw); ToolError if bad."""
     text = text.strip()
     if not raw and item.name == 'baud_rate' and text.isdigit() and int(text) > 7:
@@ -88,11 +98,11 @@ def parse_value(model: Model, item: Item, text: str, raw: bool = False) -> int:
         return by_rate[int(text)]
     if not raw and item.name == model.mode_register and text in model.modes:
         return model.modes[text]
-    unit = None if raw else si_unit(model, item)
+    unit = None if raw else si_unit(model, item, timed)
     try:
         if unit is None:
             return int(text, 0)
-        return from_si(model, item, float(text))
+        return from_si(model, item, float(text), timed)
     except ValueError:
         want = 'an integer' if unit is None else f'a number in {unit}'
         raise ToolError(f'{item.name}: {text!r} is not {want}', EXIT_USAGE) from None
@@ -357,6 +367,7 @@ def run_info(args: argparse.Namespace) -> int:
              if args.indirect or not item.name.startswith(('indirect_address_',
                                                            'indirect_data_'))]
     values = read_items(link, shown)
+    timed = registers.time_based(model, values.get('drive_mode'))
     print(f'id {link.servo_id}: {model.name} (model {model.number}), firmware '
           f'{link.firmware}, {link.bus.baud_bps} bps, Protocol {link.bus.framer.version}.0')
     print('  (* differs from the factory default, shown after it)')
@@ -368,9 +379,9 @@ def run_info(args: argparse.Namespace) -> int:
             raw = values[item.name]
             mark = ''
             if raw != item.initial and item.access == 'RW':
-                mark = f'  * default {value_text(model, item, item.initial)}'
+                mark = f'  * default {value_text(model, item, item.initial, timed)}'
             print(f'  {item.address:4d} {item.name:<26} {item.access:<2} '
-                  f'{value_text(model, item, raw)}{mark}')
+                  f'{value_text(model, item, raw, timed)}{mark}')
     return EXIT_OK
 
 
@@ -379,8 +390,9 @@ def run_get(args: argparse.Namespace) -> int:
     link = _link(args)
     items = [link.item(name) for name in args.names]
     values = read_items(link, items)
+    timed = time_profile(link)
     for item in items:
-        print(f'{item.name} = {value_text(link.model, item, values[item.name])}')
+        print(f'{item.name} = {value_text(link.model, item, values[item.name], timed)}')
     return EXIT_OK
 
 
@@ -388,19 +400,22 @@ def run_set(args: argparse.Namespace) -> int:
     """Write one item, checked, read back."""
     link = _link(args)
     item = link.item(args.name)
-    value = parse_value(link.model, item, args.value, args.raw)
+    # A profile register is a time where Drive Mode says so: its SI value is in seconds then.
+    timed = time_profile(link)
+    value = parse_value(link.model, item, args.value, args.raw, timed)
     check_write(link, item, value)
     before = read_items(link, [item])[item.name]
     if link.model.role_of(item.name) == 'id' and value != before and _answers(link, value):
         raise ToolError(f'id {value} is taken: another servo answers to it at '
                         f'{link.bus.baud_bps} bps', EXIT_USAGE)
     if before == value:
-        print(f'id {args.id}: {item.name} is already {value_text(link.model, item, value)}')
+        print(f'id {args.id}: {item.name} is already '
+              f'{value_text(link.model, item, value, timed)}')
         return EXIT_OK
     was_on = set_item(link, item, value)
     note = ' (torque off for the EEPROM write, then back on)' if was_on else ''
-    print(f'id {link.servo_id}: {item.name} = {value_text(link.model, item, value)} (was '
-          f'{value_text(link.model, item, before)}), read back{note}')
+    print(f'id {link.servo_id}: {item.name} = {value_text(link.model, item, value, timed)} '
+          f'(was {value_text(link.model, item, before, timed)}), read back{note}')
     return EXIT_OK
 
 

@@ -24,6 +24,7 @@ from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, Ty
 
 from dxl_servo_driver import config as driver_config
 from dxl_servo_driver import models
+from dxl_servo_driver import registers
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, ConfigurationError, PortError, StatusError
 from dxl_servo_driver.models.base import Item, Model, ModelError
@@ -266,8 +267,15 @@ def connect(bus: Bus, servo_id: int) -> ServoLink:
     return ServoLink(bus, servo_id, model, firmware)
 
 
-def _scale(model: Model, item: Item) -> Tuple[float, str]:
-    """Return (SI per raw unit, SI unit name) of an item, (1, its unit) when it has no SI form."""
+def _scale(model: Model, item: Item, timed: bool = False) -> Tuple[float, str]:
+    """
+    Return (SI per raw unit, SI unit name) of an item, (1, its unit) when it has no SI form.
+
+    timed: the servo's Drive Mode makes its profile registers times (registers.time_based), in
+    ms whatever unit the table gives them as speeds.
+    """
+    if timed and model.role_of(item.name) in registers.PROFILE_REGISTERS:
+        return 1e-3, 's'
     unit = item.unit
     if unit == 'pulse':
         return 2.0 * math.pi / model.pulses_per_rev, 'rad'
@@ -293,17 +301,17 @@ def _scale(model: Model, item: Item) -> Tuple[float, str]:
     return 1.0, unit
 
 
-def to_si(model: Model, item: Item, raw: int) -> Tuple[float, str]:
+def to_si(model: Model, item: Item, raw: int, timed: bool = False) -> Tuple[float, str]:
     """Return a raw value in SI units (positions from the table's zero), and the unit."""
-    factor, unit = _scale(model, item)
+    factor, unit = _scale(model, item, timed)
     if unit == 'rad' and item.name.endswith(_ABSOLUTE):
         return (raw - model.position_zero_raw) * factor, unit
     return raw * factor, unit
 
 
-def from_si(model: Model, item: Item, value: float) -> int:
+def from_si(model: Model, item: Item, value: float, timed: bool = False) -> int:
     """Return the raw value nearest to an SI value (the inverse of to_si)."""
-    factor, unit = _scale(model, item)
+    factor, unit = _scale(model, item, timed)
     if unit == 'rad' and item.name.endswith(_ABSOLUTE):
         return int(round(value / factor)) + model.position_zero_raw
     return int(round(value / factor))

@@ -59,6 +59,24 @@ def test_set_takes_si_units_and_reads_back(bus: VirtualBusProcess) -> None:
     assert bus.get(4, 'profile_velocity') == 0   # the other servo untouched
 
 
+def test_a_time_based_profile_is_set_and_shown_in_seconds(bus: VirtualBusProcess) -> None:
+    # Drive Mode's time-based bit: Profile Velocity and Acceleration are ms, so SI is seconds.
+    done = dxl(*on(bus, 'set', '3', 'drive_mode', '4', '--raw'))
+    assert done.returncode == 0, done.stderr
+    for name, seconds, raw in (('profile_velocity', '2.0', 2000),
+                               ('profile_acceleration', '0.3', 300)):
+        done = dxl(*on(bus, 'set', '3', name, seconds))
+        assert done.returncode == 0, done.stderr
+        assert bus.get(3, name) == raw
+    done = dxl(*on(bus, 'get', '3', 'profile_velocity', 'profile_acceleration'))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ['profile_velocity = 2000 (2 s)',
+                                        'profile_acceleration = 300 (0.3 s)']
+    # The other servo, velocity-based, still takes rad/s.
+    done = dxl(*on(bus, 'get', '4', 'profile_velocity'))
+    assert done.returncode == 0 and 'rad/s' in done.stdout, done.stdout
+
+
 def test_eeprom_write_with_torque_on_turns_it_off_and_back_on(bus: VirtualBusProcess) -> None:
     assert dxl(*on(bus, 'torque', '3', 'on')).returncode == 0
     assert bus.get(3, 'torque_enable') == 1
