@@ -12,7 +12,7 @@ import re
 import subprocess
 import threading
 import time
-from typing import Any, Dict, Iterator, List, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Tuple
 
 from dxl_cli import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
 from dxl_servo_driver import config
@@ -277,6 +277,32 @@ def test_directions_scripted_through_a_pipe_all_joints_at_once(
     assert 'grip.reverse' not in written
 
 
+def find_grip_stops(params: pathlib.Path, watch: Callable[[], None],
+                    stop: threading.Event) -> Tuple[float, float]:
+    """
+    Find the gripper's stops (0.3 A, 1 rad/s) with watch() running; return them.
+
+    The simulator has them at -0.4 and 1.6 rad (the console's `stops`).
+    """
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        child = spawn('calibrate', '--params', str(params), '--find-stops', 'grip', '--current',
+                      '0.3', '--speed', '1.0', '--gripper-open', 'low', '--yes')
+        try:
+            child.expect(r'grip: stops at (\S+) and (\S+)', timeout=60.0)
+            low, high = float(child.match.group(1)), float(child.match.group(2))
+            status, output = finish(child)
+        finally:
+            child.close(force=True)
+    finally:
+        stop.set()
+        watcher.join()
+    assert status == 0, output
+    assert abs(low + 0.4) < 0.01 and abs(high - 1.6) < 0.01
+    return low, high
+
+
 def test_find_stops_within_the_current_set(arm: Tuple[VirtualBusProcess, pathlib.Path]) -> None:
     bus, params = arm
     assert bus.control('stops 3 -0.4 1.6').startswith('ok')
@@ -295,22 +321,7 @@ def test_find_stops_within_the_current_set(arm: Tuple[VirtualBusProcess, pathlib
                            '--current', '2.0', '--yes'], stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=EXPECT_TIMEOUT_S)
     assert done.returncode == 2 and 'at most the Current Limit' in done.stderr, done.stderr
-    watcher = threading.Thread(target=watch)
-    watcher.start()
-    try:
-        child = spawn('calibrate', '--params', str(params), '--find-stops', 'grip', '--current',
-                      '0.3', '--speed', '1.0', '--gripper-open', 'low', '--yes')
-        try:
-            child.expect(r'grip: stops at (\S+) and (\S+)', timeout=60.0)
-            low, high = float(child.match.group(1)), float(child.match.group(2))
-            status, output = finish(child)
-        finally:
-            child.close(force=True)
-    finally:
-        stop.set()
-        watcher.join()
-    assert status == 0, output
-    assert abs(low + 0.4) < 0.01 and abs(high - 1.6) < 0.01
+    low, high = find_grip_stops(params, watch, stop)
     written = loaded(params)
     assert abs(written['grip.min_position'] - (low + 0.05)) < TOLERANCE
     assert abs(written['grip.max_position'] - (high - 0.05)) < TOLERANCE
@@ -346,22 +357,7 @@ def test_find_stops_on_a_time_based_profile_moves_at_the_speed_given(
             speeds.append(abs(bus.get(3, 'present_velocity')))
             stop.wait(0.01)
 
-    watcher = threading.Thread(target=watch)
-    watcher.start()
-    try:
-        child = spawn('calibrate', '--params', str(params), '--find-stops', 'grip', '--current',
-                      '0.3', '--speed', '1.0', '--gripper-open', 'low', '--yes')
-        try:
-            child.expect(r'grip: stops at (\S+) and (\S+)', timeout=60.0)
-            low, high = float(child.match.group(1)), float(child.match.group(2))
-            status, output = finish(child)
-        finally:
-            child.close(force=True)
-    finally:
-        stop.set()
-        watcher.join()
-    assert status == 0, output
-    assert abs(low + 0.4) < 0.01 and abs(high - 1.6) < 0.01
+    find_grip_stops(params, watch, stop)
     # 1.0 rad/s is 42 of the XL330's 0.229 rpm (twice that allowed for the bounce off a stop);
     # a move timed at 42 ms instead reaches about 255.
     assert speeds and max(speeds) <= 84, max(speeds)
