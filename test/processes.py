@@ -225,12 +225,14 @@ def params_yaml(port: str, joints: Mapping[str, Mapping[str, Any]], baud_rate: i
     """
     Return a node's params file: port, rates, the joints with their keys, then top keys.
 
-    ping_retries is 10 unless given: the simulator and the node share a loaded machine with a
+    ping_retries is 30 unless given: the simulator and the node share a loaded machine with a
     second test worker, and a configure transaction answered late three times in a row (each
     late reply taken for the next attempt's, the deadline's slack still growing) stopped a
-    node at start-up beside two busy loops. A test of retries gives its own.
+    node at start-up beside two busy loops. Attempts are counted, not timed: 30 at a 1 Mbps
+    bus's deadlines outlast a simulator held up for about a third of a second. A test of
+    retries gives its own.
     """
-    top = {'ping_retries': 10, **top}
+    top = {'ping_retries': 30, **top}
     lines = ['/**:', '  ros__parameters:', f'    port: "{port}"', f'    baud_rate: {baud_rate}',
              f'    loop_rate: {loop_rate}', f'    joints: [{", ".join(joints)}]']
     lines += [f'    {key}: {value}' for key, value in top.items()]
