@@ -13,7 +13,7 @@ from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
-from dxl_servo_driver.driver.recovery import Recovery
+from dxl_servo_driver.driver.recovery import Recovery, RESTORING_TASKS
 from dxl_servo_driver.driver.servo import ManagerError
 from dxl_servo_driver.errors import CommError, PortError
 from dxl_servo_driver.raw_port import RawPort
@@ -73,9 +73,13 @@ class PortWatch:
         state.lost = True
         state.error = str(exc)
         self._goals.clear()
+        cut_short = {task.joint for task in self._ctx.tasks.tasks()
+                     if task.kind in RESTORING_TASKS}
         self._ctx.tasks.cancel_all('the port was lost')
         for servo in self._ctx.roster.order:
             servo.fresh = False
+            if servo.name in cut_short or servo.status in ('restoring', 'rebooting'):
+                servo.restore_due = True
             servo.status = ''
         self._cycle.refresh()
         self._ctx.log.error(f'{self._ctx.config.port}: {exc}. The node stays up and reconnects '

@@ -22,6 +22,8 @@ from dxl_servo_driver.tasks import Steps, Task
 BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
 BOOT_POLL_S = 0.02        # between two pings of a booting servo
 RETRY_BACKOFF_S = 0.5     # a failed restore is tried again after this
+# The tasks that end with the servo set up again and holding (cut short, they are done again).
+RESTORING_TASKS = ('restore', 'reboot', 'recover')
 REJOIN_INTERVAL_S = 1.0   # a servo missing after the adapter came back is probed this often
 
 
@@ -77,6 +79,7 @@ class Recovery:
                 del servo.goal_raw[register]
         yield from self._setup.hold(servo)
         servo.status = ''
+        servo.restore_due = False
 
     def reboot(self, servo: Servo) -> Steps:
         """REBOOT one servo, wait for it to boot, give it its setup back holding where it is."""
@@ -116,10 +119,12 @@ class Recovery:
         values = self._link.read_block(servo)
         yield
         servo.status = ''
-        if not servo.block.restarted(values):
+        restarted = servo.block.restarted(values)
+        if not restarted and not servo.restore_due:
             servo.tick.reset()
             return   # it kept its power and its setup: it holds what it held
-        servo.restarts += 1
+        if restarted:
+            servo.restarts += 1
         yield from self.restore(servo, servo.last_joint_pulses())
 
     # the tasks ------------------------------------------------------------------------------

@@ -87,6 +87,9 @@ class Servo:
     recoveries: int = 0
     last_recovery_s: float = -1e9
     status: str = ''                # what is being done to it (restoring, rebooting, ...)
+    # A restore the lost port cut short: done again when the servo answers, whatever its setup
+    # looks like then (the configuration may be back and the torque not yet).
+    restore_due: bool = False
 
     @property
     def name(self) -> str:

@@ -494,6 +494,37 @@ def test_port_loss_then_reconnect(active: Tuple[Rig, Manager]) -> None:
     assert any('port back' in line for line in rig.logs)
 
 
+def test_a_restore_cut_short_by_a_lost_port_is_done_again(active: Tuple[Rig, Manager]) -> None:
+    # The servo restarted and its restore began; the adapter went at each step of it in turn.
+    # Cut after its configuration was written back but before its torque, it looks set up
+    # when the port returns: it must be restored all the same (the chaos test found the
+    # gripper left without torque so).
+    rig, manager = active
+    manager.reconnect_interval_s = 0.0
+    grip = manager.servos['grip']
+    cut_with_torque_off = 0
+    for steps in range(1, 40):
+        rig.sim.powercycle(3)
+        rig.wait_booted(3)
+        read_states(manager)
+        assert manager.tasks.get('grip') is not None, 'the restart was not seen'
+        for _ in range(steps):
+            manager.cycle_write(tasks_until=time.monotonic())   # one step a cycle
+        if manager.tasks.get('grip') is None:
+            break   # every step had its turn
+        if rig.reg(3, 'torque_enable') == 0 and rig.reg(3, 'operating_mode') == 0:
+            cut_with_torque_off += 1   # its mode back, its torque not yet
+        rig.tap.port.unplug_port()
+        assert not cycle_read(manager)
+        rig.tap.port.plug_port()
+        run_cycles(manager, lambda: grip.fresh and not manager.tasks.tasks(), step_s=0.01)
+        assert rig.reg(3, 'torque_enable') == 1, f'torque off after a cut at step {steps}'
+        assert not grip.restore_due
+    else:
+        raise AssertionError('the restore never ended')
+    assert cut_with_torque_off > 0, 'no cut fell between the configuration and the torque'
+
+
 def test_a_servo_missing_after_the_port_came_back_does_not_hold_up_the_others(
         active: Tuple[Rig, Manager]) -> None:
     rig, manager = active

@@ -334,7 +334,8 @@ def test_a_joint_short_of_its_goal_violates_the_goal_tolerance(h: NodeHarness) -
         assert status == GoalStatus.STATUS_ABORTED
         assert result.error_code == Result.GOAL_TOLERANCE_VIOLATED, result.error_string
         assert "'j4'" in result.error_string
-        assert 0.4 < goal.ended_s - goal.sent_s < 1.5
+        # Not before its time and tolerance (0.5 s); soon after (a busy machine: 3 s).
+        assert 0.4 < goal.ended_s - goal.sent_s < 3.0
     finally:
         h.sim.set_load(IDS['j4'], 0.0)
 
@@ -344,7 +345,8 @@ def run_until_midway(joints: Sequence[str]) -> Tuple[NodeHarness, Goal]:
     client = client_of(h)
     start = settled(h, joints)
     goal = Goal(client, goal_of(joints, [(3.0, [s + 1.0 for s in start], [])]))
-    time.sleep(0.5)
+    wait_until(lambda: all(a - s > 0.1 for a, s in zip(here(h, joints), start)), 5.0,
+               'the joints on their way')
     assert not goal.done
     return h, goal
 
@@ -352,6 +354,7 @@ def run_until_midway(joints: Sequence[str]) -> Tuple[NodeHarness, Goal]:
 def test_a_deactivate_ends_a_running_goal() -> None:
     h, goal = run_until_midway(['j1', 'j2'])
     with h:
+        event_s = time.monotonic()
         response = h.call('change_state', transition=__import__(
             'lifecycle_msgs.msg', fromlist=['Transition']).Transition(
                 id=4))   # deactivate
@@ -359,43 +362,46 @@ def test_a_deactivate_ends_a_running_goal() -> None:
         status, result = goal.result(5.0)
         assert status == GoalStatus.STATUS_ABORTED
         assert 'deactivated' in result.error_string
-        assert goal.ended_s - goal.sent_s < 2.0
+        assert goal.ended_s - event_s < 1.5
 
 
 def test_a_port_loss_ends_a_running_goal() -> None:
     h, goal = run_until_midway(['j1', 'j2'])
     with h:
         port = h.node.manager.port   # type: ignore[union-attr]
+        event_s = time.monotonic()
         port.unplug_port()
         status, result = goal.result(5.0)
         assert status == GoalStatus.STATUS_ABORTED
         assert 'the port is lost' in result.error_string, result.error_string
-        assert goal.ended_s - goal.sent_s < 2.0
+        assert goal.ended_s - event_s < 1.5
         port.plug_port()
 
 
 def test_a_servo_that_stops_answering_ends_a_running_goal() -> None:
     h, goal = run_until_midway(['j1', 'j2'])
     with h:
+        event_s = time.monotonic()
         h.sim.unplug(IDS['j2'])
         status, result = goal.result(5.0)
         assert status == GoalStatus.STATUS_ABORTED
         assert "joint 'j2' stopped answering" in result.error_string, result.error_string
-        assert goal.ended_s - goal.sent_s < 1.5
+        assert goal.ended_s - event_s < 1.5
         h.sim.plug(IDS['j2'])
 
 
 def test_a_latched_hardware_error_ends_a_running_goal() -> None:
     h, goal = run_until_midway(['j1', 'j2'])
     with h:
+        injected_s = time.monotonic()
         h.sim.inject_error(IDS['j1'], 'overload')
         status, result = goal.result(5.0)
         assert status == GoalStatus.STATUS_ABORTED
         assert "joint 'j1' latched a hardware error" in result.error_string, result.error_string
         assert 'overload' in result.error_string
-        assert goal.ended_s - goal.sent_s < 1.5
-        # The other joint holds where it was, and nothing resumes the goal.
-        held = sim_rad(h, 'j2')
+        assert goal.ended_s - injected_s < 1.0
+        # The other joint comes to rest short of the goal's end, and nothing resumes the goal.
+        held = settled(h, ['j2'])[0]
         time.sleep(0.5)
         assert abs(sim_rad(h, 'j2') - held) < 0.02
 
