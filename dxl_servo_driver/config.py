@@ -105,7 +105,8 @@ PARAMS: Tuple[ParamSpec, ...] = (
               'they imply is used; either with a warning.', 'ms', 0.0, 255.0),
     ParamSpec('ping_retries', int, 3,
               'Pings per servo at configure before it counts as missing; also the attempts of '
-              'every other configure and service transaction.',
+              'every other configure and service transaction. Configure and activate also keep '
+              'trying each for a second, for a busy computer.',
               '', 1, 100),
     ParamSpec('missing_servo', str, 'refuse',
               'A configured servo that does not answer at configure: refuse to start, or skip it '

@@ -161,7 +161,8 @@ class Manager:
             self._ports.connect()
             self._forget_clocks()
             try:
-                self._setup.configure()
+                with self._ctx.link.patient():
+                    self._setup.configure()
                 self._cycle.refresh()
             except (PortError, CommError) as exc:
                 raise ManagerError(f'configuration failed: {exc}') from None
@@ -227,7 +228,8 @@ class Manager:
         """Goal = present for every servo, then torque on (if torque_on_start)."""
         with self.lock:
             self._forget_clocks()
-            self._setup.activate(self.active_servos())
+            with self._ctx.link.patient():
+                self._setup.activate(self.active_servos())
             self._goals.clear()
             self._cycle.want_full()
 

@@ -19,6 +19,11 @@ from dxl_servo_driver.state_block import GOAL_SLOT_SIZE, GoalSlot
 
 # A changing register this close to the Realtime Tick is read with it, to date the reply.
 DATED_SPAN_BYTES = 64
+# Configure and activate try a transaction for this long at least (and ping_retries times):
+# nothing runs yet that a wait would hold up, and a busy computer (or a simulator sharing it)
+# can hold replies up past a bus's deadlines several times in a row. A servo that is really
+# missing costs a start-up this much.
+START_PATIENCE_S = 1.0
 
 
 def changes_by_itself(item: Item) -> bool:
@@ -38,6 +43,7 @@ class Link:
         # Asked between attempts: a signal stops configure and activate promptly.
         self.should_stop = should_stop
         self._attempts = attempts
+        self._patience_s = 0.0
         self._stale = stale
 
     def io(self) -> Bus:
@@ -55,15 +61,31 @@ class Link:
         finally:
             self.should_stop = stop
 
+    @contextmanager
+    def patient(self, patience_s: float = START_PATIENCE_S) -> Iterator[None]:
+        """Run a block whose transactions are tried for patience_s at least (see above)."""
+        before, self._patience_s = self._patience_s, patience_s
+        try:
+            yield
+        finally:
+            self._patience_s = before
+
     def attempt(self, action: Callable[[], Any]) -> Any:
-        """Run a transaction, again on a lost or corrupted reply (ping_retries times in all)."""
-        for attempt in range(self._attempts):
+        """
+        Run a transaction, again on a lost or corrupted reply.
+
+        ping_retries times in all, and inside patient() for its patience at least.
+        """
+        give_up_s = time.monotonic() + self._patience_s
+        tries = 0
+        while True:
             if self.should_stop():
                 raise Interrupted('stop requested')
+            tries += 1
             try:
                 return action()
             except (CommTimeout, CorruptReply):
-                if attempt + 1 >= self._attempts:
+                if tries >= self._attempts and time.monotonic() >= give_up_s:
                     raise
 
     def read(self, servo: Servo, name: str) -> int:
