@@ -11,13 +11,13 @@ import math
 import time
 from typing import Any, Dict, Iterator
 
+from action_client import Client, result_of, send_goal
 from action_msgs.msg import GoalStatus
 from control_msgs.action import FollowJointTrajectory, GripperCommand
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from node_harness import NodeHarness, sim_params
 import pytest
-from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 from trajectories import trajectory
 from trajectory_msgs.msg import JointTrajectoryPoint
@@ -141,17 +141,9 @@ def test_a_trajectory_runs_in_joint_units(h: NodeHarness) -> None:
     assert not reply.success and 'beyond its limits -1..1.19' in reply.message, reply
 
 
-def wait_for(future: Any, timeout_s: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while not future.done():
-        assert time.monotonic() < deadline, 'no answer'
-        time.sleep(0.005)
-    return future.result()
-
-
-def action_client(h: NodeHarness, kind: Any, action: str) -> ActionClient:
+def action_client(h: NodeHarness, kind: Any, action: str) -> Client:
     assert h.client is not None
-    client = ActionClient(h.client.node, kind, f'{h.namespace}/dxl_servo_driver/{action}')
+    client = Client(h.client.node, kind, f'{h.namespace}/dxl_servo_driver/{action}')
     assert client.wait_for_server(timeout_sec=10.0), f'no {action} server'
     return client
 
@@ -167,8 +159,7 @@ def test_follow_joint_trajectory_speaks_joint_units(h: NodeHarness) -> None:
     start = [joint_of(name, servo_rad(h, name)) for name in ('elbow', 'wrist')]
     assert abs(start[0] - 0.3) > 0.2, 'the elbow must have somewhere to go'
     feedback: list = []
-    handle = wait_for(client.send_goal_async(goal, feedback_callback=feedback.append))
-    response = wait_for(handle.get_result_async())
+    response = result_of(client, send_goal(client, goal, feedback.append))
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.error_string
     # Where the servos are, by the formula (the elbow's horn near 0.5 - 0.3, the wrist's near
     # 3 rad), within the goal tolerance: 0.05 in joint units.
@@ -214,7 +205,7 @@ def test_a_linear_gripper_takes_metres_and_newtons(h: NodeHarness) -> None:
     client = action_client(h, GripperCommand, 'gripper_cmd')
     goal = GripperCommand.Goal()
     goal.command.position = 0.008   # m: the servo turns 0.8 rad
-    response = wait_for(wait_for(client.send_goal_async(goal)).get_result_async())
+    response = result_of(client, send_goal(client, goal))
     assert response.status == GoalStatus.STATUS_SUCCEEDED and response.result.reached_goal
     assert servo_rad(h, 'finger') == pytest.approx(0.8, abs=0.06)   # 0.5 mm = 0.05 rad
     assert response.result.position == pytest.approx(0.008, abs=0.0006)
@@ -224,7 +215,7 @@ def test_a_linear_gripper_takes_metres_and_newtons(h: NodeHarness) -> None:
     try:
         goal.command.position = 0.012
         goal.command.max_effort = 0.3 * kt / 0.01
-        response = wait_for(wait_for(client.send_goal_async(goal)).get_result_async())
+        response = result_of(client, send_goal(client, goal))
         result = response.result
         assert response.status == GoalStatus.STATUS_SUCCEEDED, result
         assert result.stalled and not result.reached_goal

@@ -15,6 +15,7 @@ import threading
 import time
 from typing import Any, Callable, Dict, Iterator, List, Tuple
 
+from action_client import Client, result_of, send_goal
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from conditions import wait_until
@@ -28,7 +29,6 @@ from dxl_servo_driver_msgs.msg import GripperCommand
 from node_harness import NodeHarness, sim_params
 import pytest
 from rcl_interfaces.msg import Log
-from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -247,23 +247,19 @@ def test_command_topics_joint_command_and_trajectories_are_refused_by_name(rig: 
     rig.assert_never_torqued()
 
 
-def _action_result(client: ActionClient, goal: Any) -> Any:
+def _action_result(client: Client, goal: Any) -> Any:
     assert client.wait_for_server(timeout_sec=10.0)
-    future = client.send_goal_async(goal)
-    wait_until(future.done, 10.0, 'the goal answered')
-    handle = future.result()
+    handle = send_goal(client, goal)
     if not handle.accepted:
         return None
-    result = handle.get_result_async()
-    wait_until(result.done, 10.0, 'the goal ended')
-    return result.result()
+    return result_of(client, handle, 10.0)
 
 
 def test_actions_are_refused_by_name(rig: Rig) -> None:
     assert rig.h.client is not None
     prefix = f'{rig.h.namespace}/dxl_servo_driver'
-    follow = ActionClient(rig.h.client.node, FollowJointTrajectory,
-                          f'{prefix}/follow_joint_trajectory')
+    follow = Client(rig.h.client.node, FollowJointTrajectory,
+                    f'{prefix}/follow_joint_trajectory')
     goal = FollowJointTrajectory.Goal()
     goal.trajectory.joint_names = ['lead']
     goal.trajectory.points = [JointTrajectoryPoint(positions=[0.1],
@@ -272,7 +268,7 @@ def test_actions_are_refused_by_name(rig: Rig) -> None:
     assert response is not None and response.status == GoalStatus.STATUS_ABORTED
     assert response.result.error_code == FollowJointTrajectory.Result.INVALID_JOINTS
     assert f"joint 'lead' {REFUSED}" in response.result.error_string
-    grip = ActionClient(rig.h.client.node, GripperAction, f'{prefix}/gripper_cmd')
+    grip = Client(rig.h.client.node, GripperAction, f'{prefix}/gripper_cmd')
     goal = GripperAction.Goal()
     goal.command.position = 0.5
     response = _action_result(grip, goal)

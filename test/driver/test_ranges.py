@@ -14,8 +14,8 @@ any goal that got through to have been written.
 import math
 from typing import Any, Callable, Dict, Iterator, List, Tuple
 
+from action_client import Client, result_of, send_goal
 from action_msgs.msg import GoalStatus
-from conditions import wait_until
 from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from dxl_servo_driver.config import ConfigError, validate
 from dxl_servo_driver.models import model_for
@@ -23,7 +23,6 @@ from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver_msgs.msg import GripperCommand as GripperTopic
 from node_harness import NodeHarness, sim_params
 import pytest
-from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 from trajectories import goal_of, trajectory
 
@@ -57,21 +56,18 @@ def goal_rad(h: NodeHarness, name: str) -> float:
     return XM430.position_to_rad(h.reg(IDS[name], 'goal_position'))
 
 
-def action(h: NodeHarness, kind: Any, name: str) -> ActionClient:
+def action(h: NodeHarness, kind: Any, name: str) -> Client:
     assert h.client is not None
-    client = ActionClient(h.client.node, kind, f'{h.namespace}/dxl_servo_driver/{name}')
+    client = Client(h.client.node, kind, f'{h.namespace}/dxl_servo_driver/{name}')
     assert client.wait_for_server(timeout_sec=10.0), f'no {name} server'
     return client
 
 
-def ended(client: ActionClient, goal: Any) -> Tuple[int, Any]:
-    future = client.send_goal_async(goal)
-    wait_until(future.done, 10.0, 'the goal answered')
-    handle = future.result()
+def ended(client: Client, goal: Any) -> Tuple[int, Any]:
+    handle = send_goal(client, goal)
     assert handle.accepted   # refused goals are accepted and aborted with the reason
-    result = handle.get_result_async()
-    wait_until(result.done, 10.0, 'the goal ended')
-    return result.result().status, result.result().result
+    response = result_of(client, handle, 10.0)
+    return response.status, response.result
 
 
 def gripper_topic(name: str, position: float) -> GripperTopic:

@@ -13,6 +13,7 @@ import re
 import time
 from typing import Any, Callable, Dict, Iterator, List, Sequence, Tuple
 
+from action_client import Client, in_executor
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from conditions import wait_until
@@ -25,7 +26,6 @@ from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.transports import open_transport, SimTransport, Transport
 from node_harness import NodeHarness, sim_params
 import pytest
-from rclpy.action import ActionClient
 from rclpy.qos import QoSProfile
 from trajectories import goal_of
 from truth import Messages, stamp_s
@@ -69,17 +69,18 @@ def sim_rad(h: NodeHarness, name: str) -> float:
 class Goal:
     """One goal sent by an action client: its feedback, its result."""
 
-    def __init__(self, client: ActionClient, goal: Any) -> None:
+    def __init__(self, client: Client, goal: Any) -> None:
         self.feedback: List[Tuple[float, Any]] = []
+        self._node = client.owner
         self.sent_s = time.monotonic()
-        future = client.send_goal_async(
+        future = in_executor(self._node, lambda: client.send_goal_async(
             goal, feedback_callback=lambda msg: self.feedback.append(
-                (time.monotonic(), msg.feedback)))
+                (time.monotonic(), msg.feedback))))
         wait_until(future.done, 10.0, 'the goal answered')
         self.handle = future.result()
         assert self.handle.accepted
-        self._result = self.handle.get_result_async()
         self.ended_s = math.nan
+        self._result = in_executor(self._node, self.handle.get_result_async)
         self._result.add_done_callback(lambda _: setattr(self, 'ended_s', time.monotonic()))
 
     def result(self, timeout_s: float = 15.0) -> Tuple[int, Any]:
@@ -96,14 +97,14 @@ class Goal:
         return self._result.done()
 
     def cancel(self) -> None:
-        future = self.handle.cancel_goal_async()
+        future = in_executor(self._node, self.handle.cancel_goal_async)
         wait_until(future.done, 10.0, 'the cancel answered')
 
 
-def client_of(h: NodeHarness) -> ActionClient:
+def client_of(h: NodeHarness) -> Client:
     assert h.client is not None
-    client = ActionClient(h.client.node, FollowJointTrajectory,
-                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory')
+    client = Client(h.client.node, FollowJointTrajectory,
+                    f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory')
     assert client.wait_for_server(timeout_sec=10.0), 'no follow_joint_trajectory server'
     return client
 
@@ -406,10 +407,10 @@ def test_a_latched_hardware_error_ends_a_running_goal() -> None:
         assert abs(sim_rad(h, 'j2') - held) < 0.02
 
 
-def gripper_client(h: NodeHarness, action: str = 'gripper_cmd') -> ActionClient:
+def gripper_client(h: NodeHarness, action: str = 'gripper_cmd') -> Client:
     assert h.client is not None
-    client = ActionClient(h.client.node, GripperCommand,
-                          f'{h.namespace}/dxl_servo_driver/{action}')
+    client = Client(h.client.node, GripperCommand,
+                    f'{h.namespace}/dxl_servo_driver/{action}')
     assert client.wait_for_server(timeout_sec=10.0), f'no {action} server'
     return client
 
@@ -470,10 +471,10 @@ def test_a_gripper_goal_beyond_its_current_limit_is_refused(h: NodeHarness) -> N
     assert (h.reg(IDS['claw'], 'goal_position'), h.reg(IDS['claw'], 'goal_current')) == before
 
 
-def parallel_client(h: NodeHarness, action: str = 'parallel_gripper_cmd') -> ActionClient:
+def parallel_client(h: NodeHarness, action: str = 'parallel_gripper_cmd') -> Client:
     assert h.client is not None
-    client = ActionClient(h.client.node, ParallelGripperCommand,
-                          f'{h.namespace}/dxl_servo_driver/{action}')
+    client = Client(h.client.node, ParallelGripperCommand,
+                    f'{h.namespace}/dxl_servo_driver/{action}')
     assert client.wait_for_server(timeout_sec=10.0), f'no {action} server'
     return client
 
@@ -489,7 +490,7 @@ def parallel(position: Sequence[float], velocity: Sequence[float] = (),
     return goal
 
 
-def opened(h: NodeHarness, client: ActionClient) -> None:
+def opened(h: NodeHarness, client: Client) -> None:
     """Open the claw and wait for it to be there."""
     status, result = Goal(client, parallel([0.0])).result()
     assert status == GoalStatus.STATUS_SUCCEEDED and result.reached_goal
@@ -731,43 +732,23 @@ def test_a_burst_of_goals_is_answered_whole() -> None:
         burst(fresh)
 
 
-def in_executor(h: NodeHarness, call: Callable[[], List[Any]]) -> List[Any]:
-    """
-    Return what call returns, run in the client's executor thread (a one-shot timer).
-
-    rclpy's ActionClient files a request's future only after sending it: sent from another
-    thread, an answer the executor takes in between is dropped as unexpected (50 goals sent
-    from the test's thread got 0, 1 or 15 answers in full runs). In the executor's own thread
-    nothing is taken in between.
-    """
-    assert h.client is not None
-    made: List[Any] = []
-
-    def once() -> None:
-        timer.cancel()
-        made.extend(call())
-    timer = h.client.node.create_timer(0.001, once)
-    wait_until(lambda: bool(made), 10.0, 'the executor ran the call')
-    h.client.node.destroy_timer(timer)
-    return made
-
-
 def burst(h: NodeHarness) -> None:
     assert h.client is not None
     deep = QoSProfile(depth=100)
-    client = ActionClient(h.client.node, FollowJointTrajectory,
-                          f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory',
-                          goal_service_qos_profile=deep, result_service_qos_profile=deep)
+    client = Client(h.client.node, FollowJointTrajectory,
+                    f'{h.namespace}/dxl_servo_driver/follow_joint_trajectory',
+                    goal_service_qos_profile=deep, result_service_qos_profile=deep)
     assert client.wait_for_server(timeout_sec=10.0), 'no follow_joint_trajectory server'
     start = here(h, ['j1'])[0]
-    futures = in_executor(h, lambda: [
+    futures = in_executor(h.client.node, lambda: [
         client.send_goal_async(goal_of(['j1'], [(0.5, [start + 0.001 * k], [])]))
         for k in range(50)])
     wait_until(lambda: all(future.done() for future in futures), 20.0,
                f'all 50 goals answered ({sum(f.done() for f in futures)} were)')
     handles = [future.result() for future in futures]
     assert all(handle.accepted for handle in handles)
-    results = in_executor(h, lambda: [handle.get_result_async() for handle in handles])
+    results = in_executor(h.client.node,
+                          lambda: [handle.get_result_async() for handle in handles])
     wait_until(lambda: all(result.done() for result in results), 20.0,
                f'all 50 results come ({sum(r.done() for r in results)} did)')
     statuses = [result.result().status for result in results]
