@@ -14,11 +14,12 @@ import sys
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
 from dxl_servo_driver.config import DriverConfig  # noqa: E402 - after the path set-up above
+from dxl_servo_driver.driver.state_block import BLOCK_SHAPE  # noqa: E402
+from dxl_servo_driver.driver.transports import (  # noqa: E402
+    open_transport, SimTransport, Transport)
 from dxl_servo_driver.ros.main import main  # noqa: E402
 from dxl_servo_driver.sim.port import SimPortHandler  # noqa: E402
 from dxl_servo_driver.sim.replay import ReplayPort  # noqa: E402
-from dxl_servo_driver.state_block import BLOCK_SHAPE  # noqa: E402
-from dxl_servo_driver.transports import open_transport, SimTransport, Transport  # noqa: E402
 
 # Where each servo's Realtime Tick lies in its part of the cycle's read: the last of the tagged
 # part, which leads every read of the X layout (motion, tick, then health).

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / 'bench'))
 from ceiling_node import replay_transport  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.config import validate  # noqa: E402
 from dxl_servo_driver.driver.loop import CycleLoop, PrintLog  # noqa: E402
-from dxl_servo_driver.manager import Manager  # noqa: E402
+from dxl_servo_driver.driver.manager import Manager  # noqa: E402
 
 
 def replay_manager(n: int, read_mode: str = 'sync') -> Manager:

@@ -21,8 +21,8 @@ import tty
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
 from dxl_servo_driver import protocol  # noqa: E402 - after the path set-up above
-from dxl_servo_driver.state_block import BLOCK_SHAPE  # noqa: E402
-from dxl_servo_driver.termios2 import set_tty_speed  # noqa: E402
+from dxl_servo_driver.driver.state_block import BLOCK_SHAPE  # noqa: E402
+from dxl_servo_driver.port import set_tty_speed  # noqa: E402
 from dxl_servo_driver.timerslack import fine_timer_slack  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402

@@ -165,7 +165,7 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
     sys.path.insert(0, '.')
     from dxl_servo_driver.config import validate
     from dxl_servo_driver.driver.loop import CycleLoop, PrintLog
-    from dxl_servo_driver.manager import Manager
+    from dxl_servo_driver.driver.manager import Manager
     joints = [f'j{i}' for i in range(1, n + 1)]
     params: Dict[str, Any] = {
         'port': port_name, 'baud_rate': baud, 'latency_timer': 0.0,

@@ -4,16 +4,16 @@ import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from conditions import wait_until
-from dxl_servo_driver import state_block
 from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.driver import state_block
+from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.transports import SimTransport
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet, StreamParser
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
-from dxl_servo_driver.transports import SimTransport
 
 XM430_UNITS = units_for(model_for(1030))
 SEED_BLOCK = state_block.state_block(model_for(1030), 'present_current')

@@ -16,10 +16,10 @@ from typing import (
 
 from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
+from dxl_servo_driver.driver.transports import open_transport, PortFactory, SimTransport, Transport
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.ros.node import DriverNode, NODE_NAME, StartupFailure
 from dxl_servo_driver.sim.port import SimPortHandler
-from dxl_servo_driver.transports import open_transport, PortFactory, SimTransport, Transport
 from dxl_servo_driver_msgs.msg import JointCommand, ServoStateArray
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)

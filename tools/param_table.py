@@ -1,7 +1,7 @@
 """
 Print the parameter tables of docs/parameters.md (top level, per joint) from the code.
 
-The tables are dxl_servo_driver/config.py's PARAMS and JOINT_PARAMS; test/docs/test_readme.py
+The tables are dxl_servo_driver.config's PARAMS and JOINT_PARAMS; test/docs/test_readme.py
 checks that PAGE holds every row printed here. After a change to a parameter, paste the output
 there.
 """

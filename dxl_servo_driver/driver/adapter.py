@@ -30,7 +30,7 @@ from typing import List, Optional, Sequence, Tuple
 from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, MAX_DEADLINE_SLACK_S
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import Servo
-from dxl_servo_driver.serial_port import adapter_latency_timer_ms
+from dxl_servo_driver.port import adapter_latency_timer_ms
 
 # Pings timed (of the first servo that answers). The largest delays count, since an FTDI chip
 # hands its buffer over anywhere from at once to a whole timer after the data came; but not the

@@ -14,7 +14,7 @@ from typing import Any, Callable
 from dxl_servo_driver.config import DriverConfig
 from dxl_servo_driver.driver.link import Link
 from dxl_servo_driver.driver.servo import Log, PortState, Roster, StaleGuard
-from dxl_servo_driver.tasks import TaskRunner
+from dxl_servo_driver.driver.tasks import TaskRunner
 
 
 # The C re-entrant lock's type (threading.RLock is a factory, and typeshed names no such class):

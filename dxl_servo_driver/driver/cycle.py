@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import time
 from typing import Callable, Dict, List, Optional, Tuple, TypeVar, Union
 
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import FRAMERS, READ_TAGS, SyncRead, SyncResult
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.context import Context, SharedLock
 from dxl_servo_driver.driver.goal_write import GoalWriter
 from dxl_servo_driver.driver.goals import Goals

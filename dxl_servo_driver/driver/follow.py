@@ -39,8 +39,8 @@ import time
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver.config import DriverConfig, JointConfig
+from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.driver.servo import IDX_POSITION, Result, Throttle
-from dxl_servo_driver.manager import Manager
 
 __all__ = ['FOLLOWER', 'Follower', 'LeaderSample', 'gripper_map']
 

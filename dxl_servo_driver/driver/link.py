@@ -13,9 +13,9 @@ from typing import Any, Callable, Iterator, Optional, Tuple
 
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.driver.servo import Servo, StaleGuard
+from dxl_servo_driver.driver.state_block import GOAL_SLOT_SIZE, GoalSlot
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, Interrupted
 from dxl_servo_driver.models import Item
-from dxl_servo_driver.state_block import GOAL_SLOT_SIZE, GoalSlot
 
 # A changing register this close to the Realtime Tick is read with it, to date the reply.
 DATED_SPAN_BYTES = 64

@@ -36,8 +36,8 @@ import time
 import traceback
 from typing import Any, Callable, List, Optional, Protocol, Sequence, TextIO, Tuple
 
+from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.driver.rates import RateMeter, Shortfall
-from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.timerslack import fine_timer_slack
 
 __all__ = ['CycleLoop', 'CycleStep', 'Logger', 'PrintLog', 'Publish', 'RATE_LOG_INTERVAL_S',

@@ -9,16 +9,16 @@ work (the node stays up), and once the port is back every servo rejoins on its o
 
 from typing import Optional
 
-from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver.bus import Bus, BusTrace, FRAMERS
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.recovery import Recovery, RESTORING_TASKS
 from dxl_servo_driver.driver.servo import ManagerError
+from dxl_servo_driver.driver.transports import PortFactory, Transport
 from dxl_servo_driver.errors import CommError, PortError
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.transports import PortFactory, Transport
-from dxl_servo_driver.wire import BusTrace
+from dxl_servo_driver.port import RawPort
+
 
 RECONNECT_INTERVAL_S = 1.0   # a lost port is tried again this often
 

@@ -12,8 +12,8 @@ auto's judgement of the fast reads. No transaction here: driver/cycle.Cycle read
 
 from typing import Dict, FrozenSet, List, Optional, Tuple
 
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import READ_TAGS, SyncResult
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import BLOCK, Servo, Throttle
 

@@ -15,9 +15,9 @@ from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
 from dxl_servo_driver.driver.servo import IDX_HW_ERROR, Servo, Throttle
 from dxl_servo_driver.driver.setup import Setup
+from dxl_servo_driver.driver.tasks import Steps, Task
 from dxl_servo_driver.errors import CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.models import modes
-from dxl_servo_driver.tasks import Steps, Task
 
 BOOT_TIMEOUT_S = 3.0      # a rebooted servo must answer a ping within this
 BOOT_POLL_S = 0.02        # between two pings of a booting servo

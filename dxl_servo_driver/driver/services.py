@@ -10,7 +10,6 @@ import functools
 from typing import Any, Callable, List, Optional, Sequence
 
 from dxl_servo_driver import models
-from dxl_servo_driver import registers
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.cycle import Cycle
 from dxl_servo_driver.driver.goals import Goals
@@ -18,9 +17,10 @@ from dxl_servo_driver.driver.port_watch import PortWatch
 from dxl_servo_driver.driver.recovery import Recovery
 from dxl_servo_driver.driver.servo import clamp_position, Result, run, Servo
 from dxl_servo_driver.driver.setup import position_limit_registers, Setup
+from dxl_servo_driver.driver.tasks import Task
 from dxl_servo_driver.errors import BadRequest, CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.models import modes
-from dxl_servo_driver.tasks import Task
+from dxl_servo_driver.models import registers
 
 
 def _answers(method: Callable[..., Result]) -> Callable[..., Result]:

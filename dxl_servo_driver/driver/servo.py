@@ -10,15 +10,15 @@ import time
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver import models
-from dxl_servo_driver import state_block
-from dxl_servo_driver import tasks
 from dxl_servo_driver.config import JointConfig
+from dxl_servo_driver.driver import state_block
+from dxl_servo_driver.driver import tasks
 from dxl_servo_driver.driver.clock import TickClock
+from dxl_servo_driver.driver.state_block import GoalSlot, StateBlock
+from dxl_servo_driver.driver.tasks import Steps
 from dxl_servo_driver.errors import Refused
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.units import JointFrame, Units, units_for
-from dxl_servo_driver.state_block import GoalSlot, StateBlock
-from dxl_servo_driver.tasks import Steps
 
 Log = Callable[[str], None]
 BLOCK = state_block.BLOCK_SHAPE   # decodes every model's block; where it lives is Servo.block

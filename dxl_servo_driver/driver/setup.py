@@ -12,17 +12,17 @@ Present Position are kept in the joint's turn offset. The long activities are st
 from typing import Any, Dict, Generator, List, Optional, Tuple
 
 from dxl_servo_driver import models
-from dxl_servo_driver import state_block
 from dxl_servo_driver.config import check_joint_against
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.adapter import settle_latency_timer
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import clamp_position, ManagerError, run, Servo
+from dxl_servo_driver.driver.tasks import Steps
 from dxl_servo_driver.errors import (
     CommError, CommTimeout, ConfigurationError, CorruptReply, PortError, StatusError)
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
-from dxl_servo_driver.tasks import Steps
 
 # Read at configure and kept: the bounds goals are clamped to (those the model has).
 LIMIT_REGISTERS = ('min_position_limit', 'max_position_limit', 'velocity_limit',

@@ -33,8 +33,8 @@ from typing import Any, Deque, Dict, List, Optional, Protocol, Sequence, Tuple
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver import gripper
-from dxl_servo_driver import trajectory as traj
+from dxl_servo_driver.arm import gripper
+from dxl_servo_driver.arm import trajectory as traj
 from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.ros.arm import Arm
 import rclpy

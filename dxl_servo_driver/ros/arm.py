@@ -15,12 +15,12 @@ import time
 from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from dxl_servo_driver import config as cfg
-from dxl_servo_driver import gripper
-from dxl_servo_driver import trajectory as traj
-from dxl_servo_driver.commands import split_joint_state
+from dxl_servo_driver.arm import gripper
+from dxl_servo_driver.arm import trajectory as traj
+from dxl_servo_driver.arm.commands import split_joint_state
+from dxl_servo_driver.arm.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
+from dxl_servo_driver.driver.manager import IDX_EFFORT, IDX_POSITION, IDX_VELOCITY, Manager, Result
 from dxl_servo_driver.errors import BadRequest
-from dxl_servo_driver.gripper import GraspDetector, gripper_goal, GripperError, GripperSpec
-from dxl_servo_driver.manager import IDX_EFFORT, IDX_POSITION, IDX_VELOCITY, Manager, Result
 from dxl_servo_driver.models import modes
 
 __all__ = ['Arm']

@@ -13,7 +13,7 @@ import time
 from typing import Any, Callable, Protocol, Sequence
 
 from dxl_servo_driver.driver.loop import CycleLoop, CycleStep, Publish, RATE_LOG_INTERVAL_S
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.ros.diagnostics import CycleFacts
 
 __all__ = ['CycleRunner', 'Host', 'RATE_LOG_INTERVAL_S']

@@ -10,7 +10,7 @@ from typing import Any, Dict, List, Mapping, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.manager import (
+from dxl_servo_driver.driver.manager import (
     IDX_HW_ERROR, IDX_TEMPERATURE, IDX_TORQUE, IDX_VOLTAGE, Manager, Servo)
 
 # A cycle that has not completed for this long (and five periods) is reported as stalled.

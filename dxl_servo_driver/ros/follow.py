@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver.driver.follow import Follower
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.ros.arm import Arm
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool

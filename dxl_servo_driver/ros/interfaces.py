@@ -8,10 +8,10 @@ transaction, never raise, and refuse while the node is not active.
 import time
 from typing import Any, Callable, List, Protocol
 
-from dxl_servo_driver.manager import Manager, Result
+from dxl_servo_driver.driver.manager import Manager, Result
+from dxl_servo_driver.driver.tasks import Task
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.ros.arm import Arm
-from dxl_servo_driver.tasks import Task
 from dxl_servo_driver_msgs.msg import GripperCommand, JointCommand
 from dxl_servo_driver_msgs.srv import (
     ReadRegister, Reboot, SetGoals, SetOperatingMode, SetTorque, WriteRegister)

@@ -11,8 +11,8 @@ import threading
 from typing import Any, List, Optional
 
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver.driver.manager import open_transport, PortFactory
 from dxl_servo_driver.errors import Interrupted
-from dxl_servo_driver.manager import open_transport, PortFactory
 from dxl_servo_driver.ros.node import DriverNode, NODE_NAME, StartupFailure
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

@@ -10,7 +10,7 @@ import struct
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from builtin_interfaces.msg import Time
-from dxl_servo_driver.manager import (
+from dxl_servo_driver.driver.manager import (
     IDX_EFFORT, IDX_HW_ERROR, IDX_MOVING, IDX_MOVING_STATUS, IDX_POSITION, IDX_PWM,
     IDX_TEMPERATURE, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Servo)
 from dxl_servo_driver_msgs.msg import ServoState, ServoStateArray

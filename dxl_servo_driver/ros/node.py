@@ -16,8 +16,8 @@ from typing import Any, Callable, Dict, List, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver.driver.manager import Manager, ManagerError, open_transport, PortFactory
 from dxl_servo_driver.errors import DriverError, Interrupted
-from dxl_servo_driver.manager import Manager, ManagerError, open_transport, PortFactory
 from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.actions import Actions
 from dxl_servo_driver.ros.arm import Arm

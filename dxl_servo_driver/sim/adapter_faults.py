@@ -31,10 +31,9 @@ import time
 import tty
 from typing import Any, Callable, Optional
 
-from dxl_servo_driver import protocol1
+from dxl_servo_driver.port import RawPort, set_tty_speed, tty_speed_bps
 from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
+from dxl_servo_driver.protocol import protocol1
 
 # Replies a late copy is chosen from.
 LATE_HISTORY = 20

@@ -41,7 +41,7 @@ from dxl_servo_driver.models import Model
 from dxl_servo_driver.protocol import (
     BROADCAST_ID, encode_fast_status, FAST_HEAD_SIZE, Instruction, MAX_ID, Packet, ParseEvent,
     StreamParser)
-from dxl_servo_driver.protocol1 import StreamParser1
+from dxl_servo_driver.protocol.protocol1 import StreamParser1
 from dxl_servo_driver.sim import protocol1
 from dxl_servo_driver.sim.collision import BITS_PER_FRAME, SKEW_BITS, wired_and
 from dxl_servo_driver.sim.dynamics import ServoDynamics

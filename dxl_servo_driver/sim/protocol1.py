@@ -29,7 +29,7 @@ address 255 are out of reach, and an error byte of bits. Choices where the ROBOT
 import struct
 
 from dxl_servo_driver.protocol import ErrorCode, Packet, ParseEvent
-from dxl_servo_driver.protocol1 import (
+from dxl_servo_driver.protocol.protocol1 import (
     BROADCAST_ID, encode_status, ErrorBit, Instruction1, MAX_ADDRESS)
 from dxl_servo_driver.sim.memory import TableError
 from dxl_servo_driver.sim.servo import SimServo

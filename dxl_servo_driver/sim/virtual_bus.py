@@ -55,8 +55,11 @@ import time
 import tty
 from typing import Callable, Mapping, NoReturn, Sequence, TextIO
 
-from dxl_servo_driver import protocol, protocol1
+from dxl_servo_driver import protocol
+
 from dxl_servo_driver.models import Model, model_for, model_named, ModelError, xm430
+from dxl_servo_driver.port import set_tty_speed, tty_speed_bps
+from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.adapter_faults import FaultEngine
 from dxl_servo_driver.sim.bus import SimBus
@@ -64,7 +67,6 @@ from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, Memory
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler
-from dxl_servo_driver.termios2 import set_tty_speed, tty_speed_bps
 
 PTS_PREFIX = '/dev/pts/'
 READ_CHUNK = 4096

@@ -39,8 +39,8 @@ from dxl_servo_driver import config as driver_config
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError, ConfigurationError
 from dxl_servo_driver.models import modes
+from dxl_servo_driver.models.registers import time_based
 from dxl_servo_driver.models.units import JointFrame, units_for
-from dxl_servo_driver.registers import time_based
 from dxl_servo_driver.tool import yaml_edit
 from dxl_servo_driver.tool.common import (
     EXIT_FAILED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError)

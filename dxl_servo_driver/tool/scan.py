@@ -2,14 +2,14 @@
 `dxl scan`: find the servos on a port, at every baud rate, in both protocols (`scan`'s own).
 
 The same command as the `scan` executable, inside `dxl`: its options are the ones
-`dxl_servo_driver.scan.add_arguments` builds (one definition for both), its run is
-`dxl_servo_driver.scan.run`, so what it prints, writes and exits with is scan's (README.md,
-docs/hardware.md), said as `dxl scan`; like every `dxl` command it also takes --trace FILE.
+`tool.scan_bus.add_arguments` builds (one definition for both), its run is `tool.scan_bus.run`,
+so what it prints, writes and exits with is scan's (README.md, docs/hardware.md), said as
+`dxl scan`; like every `dxl` command it also takes --trace FILE.
 """
 
 import argparse
 
-from dxl_servo_driver import scan
+from dxl_servo_driver.tool import scan_bus as scan
 from dxl_servo_driver.tool.common import EXIT_USAGE, ToolError
 
 EXAMPLE = 'dxl scan --port /dev/ttyDXL --output robot.yaml'

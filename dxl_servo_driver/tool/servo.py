@@ -27,8 +27,8 @@ import sys
 import time
 from typing import Callable, Dict, Iterator, List, Optional, Sequence
 
-from dxl_servo_driver import registers
 from dxl_servo_driver.errors import CommError, PortError, StatusError
+from dxl_servo_driver.models import registers
 from dxl_servo_driver.models.base import Item, Model
 from dxl_servo_driver.tool.common import EXIT_FAILED, EXIT_OK, EXIT_PORT, EXIT_USAGE, ToolError
 from dxl_servo_driver.tool.session import (

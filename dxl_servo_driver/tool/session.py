@@ -24,15 +24,15 @@ from typing import Callable, Dict, Iterator, List, Optional, Sequence, Tuple, Ty
 
 from dxl_servo_driver import config as driver_config
 from dxl_servo_driver import models
-from dxl_servo_driver import registers
-from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver.bus import Bus, BusTrace, FRAMERS
 from dxl_servo_driver.errors import CommError, ConfigurationError, PortError, StatusError
+from dxl_servo_driver.models import registers
 from dxl_servo_driver.models.base import Item, Model, ModelError
+from dxl_servo_driver.port import adapter_latency_timer_ms, open_port
 from dxl_servo_driver.protocol import MAX_ID
-from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
 from dxl_servo_driver.tool import yaml_edit
 from dxl_servo_driver.tool.common import EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE, ToolError
-from dxl_servo_driver.wire import BusTrace
+
 
 T = TypeVar('T')
 FACTORY_BAUD = 57600

@@ -35,12 +35,14 @@ from typing import (
     AbstractSet, Callable, Dict, FrozenSet, Iterable, Iterator, List, Optional, Sequence, Tuple,
     Union)
 
-from dxl_servo_driver import models, protocol1
+from dxl_servo_driver import models
+
 from dxl_servo_driver.models.base import Model, ModelError
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, ERROR_CODE_MASK, ERROR_TEXT, Frame, Instruction,
     parse_fast_status, scan_frames)
-from dxl_servo_driver.protocol1 import Frame1, Instruction1
+from dxl_servo_driver.protocol import protocol1
+from dxl_servo_driver.protocol.protocol1 import Frame1, Instruction1
 from dxl_servo_driver.tool.common import (
     add_command, EXIT_FAILED, EXIT_OK, EXIT_USAGE, ToolError)
 from dxl_servo_driver.tool.session import to_si

@@ -4,8 +4,8 @@ import struct
 import time
 from typing import Tuple
 
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.errors import CommTimeout, CorruptReply
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.sim.bus import SimBus

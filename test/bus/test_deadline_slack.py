@@ -13,8 +13,8 @@ it means to. On the machine's clock a busy machine decides when the bus looks: a
 time is seen in the last half of the slack (and raises it) by a reader that woke late.
 """
 
-from dxl_servo_driver import wire
 from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, MAX_DEADLINE_SLACK_S
+from dxl_servo_driver.bus import wire
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 from fake_clock import FakeClock, LatePort
 import pytest
@@ -89,7 +89,7 @@ def test_a_silent_servo_leaves_the_slack_as_it_is(clock: FakeClock) -> None:
 
 def test_a_raised_slack_comes_back_down_after_requests_with_nothing_late(
         clock: FakeClock, monkeypatch: pytest.MonkeyPatch) -> None:
-    # The wire layer reads it (dxl_servo_driver/wire.py); bus only re-exports it.
+    # The wire layer reads it (dxl_servo_driver/bus/wire.py).
     monkeypatch.setattr(wire, 'SLACK_DECAY_REQUESTS', 5)
     bus = late_bus(clock, 0.0)
     bus.raise_slack()
@@ -106,8 +106,8 @@ def test_a_cycle_behind_late_replies_gets_the_slack_they_need_and_reads_well_aga
     # Back to back, as the node at full speed: the late replies of one read arrive during the
     # next, are taken for its answers and refused by their tick; the cycle raises the slack.
     from dxl_servo_driver.config import validate
-    from dxl_servo_driver.manager import Manager
-    from dxl_servo_driver.transports import SimTransport
+    from dxl_servo_driver.driver.manager import Manager
+    from dxl_servo_driver.driver.transports import SimTransport
     from node_harness import sim_params
     sim = clock.sim(IDS)
     configure_servos(sim, BAUD, 0)

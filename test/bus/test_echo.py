@@ -14,7 +14,8 @@ import time
 from typing import Any, Callable, Dict, Tuple
 
 from adapter_faults import Faults, FaultyPort
-from dxl_servo_driver.bus import Bus, Counters
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.bus.wire import Counters
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos

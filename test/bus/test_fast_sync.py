@@ -6,19 +6,19 @@ from typing import Dict, Iterator, List, Tuple
 
 from adapter_faults import FaultyPort
 from dxl_servo_driver import protocol
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig, validate
 from dxl_servo_driver.driver import clock
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.cycle import FAST_EMPTY_LIMIT
+from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.transports import SimTransport
 from dxl_servo_driver.errors import CommTimeout, CorruptReply
-from dxl_servo_driver.manager import Manager
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.sim import servo as sim_servo
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
-from dxl_servo_driver.transports import SimTransport
 from fake_clock import FakeClock
 from manager_rig import BAUD as RIG_BAUD, cycle_read, params, Rig, TapPort
 import pytest

@@ -22,8 +22,9 @@ import threading
 import time
 from typing import Callable, List, Tuple
 
-from dxl_servo_driver.bus import Bus, TURNAROUND_ON_TIME
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.bus.wire import TURNAROUND_ON_TIME
+from dxl_servo_driver.port.serial_device import open_port
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos

@@ -15,8 +15,8 @@ from typing import Callable, Dict, Iterator, List, Tuple
 
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import PortError
-from dxl_servo_driver.serial_port import open_port, SerialPort
-from dxl_servo_driver.termios2 import set_tty_speed
+from dxl_servo_driver.port.serial_device import open_port, SerialPort
+from dxl_servo_driver.port.termios2 import set_tty_speed
 import pytest
 
 BAUD = 1_000_000

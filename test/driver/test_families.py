@@ -11,7 +11,8 @@ import struct
 from typing import Any, Dict
 
 from dxl_servo_driver.config import validate
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.transports import SimTransport
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.units import units_for
@@ -19,7 +20,6 @@ from dxl_servo_driver.protocol import Instruction
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
-from dxl_servo_driver.transports import SimTransport
 from manager_rig import TapPort
 from node_harness import NodeHarness, sim_params
 import pytest

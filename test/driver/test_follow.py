@@ -16,8 +16,8 @@ from typing import Any, Callable, Dict, Iterator, List, Tuple
 from dxl_servo_driver.config import ConfigError, DriverConfig, validate
 from dxl_servo_driver.driver.follow import Follower
 from dxl_servo_driver.driver.loop import CycleLoop
-from dxl_servo_driver.manager import Manager
-from dxl_servo_driver.transports import open_transport, Transport
+from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.transports import open_transport, Transport
 import pytest
 
 RATE_HZ = 100.0

@@ -9,7 +9,7 @@ does too, and says so in the log; a limit farther out is still refused at config
 import math
 
 from dxl_servo_driver.config import validate
-from dxl_servo_driver.manager import ManagerError
+from dxl_servo_driver.driver.manager import ManagerError
 from manager_rig import params, Rig, XM430_UNITS
 import pytest
 

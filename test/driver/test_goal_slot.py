@@ -11,9 +11,9 @@ import struct
 from typing import Any, Dict, List, Tuple
 
 from dxl_servo_driver import protocol
-from dxl_servo_driver import state_block
 from dxl_servo_driver.config import validate
-from dxl_servo_driver.manager import Manager
+from dxl_servo_driver.driver import state_block
+from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.models import ALL_MODELS, model_for, modes, X_MODELS
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.protocol import Instruction, Packet

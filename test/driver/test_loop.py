@@ -14,8 +14,8 @@ from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
 
 from dxl_servo_driver.config import DriverConfig, validate
 from dxl_servo_driver.driver.loop import CycleLoop, THREAD_NAME
-from dxl_servo_driver.manager import Manager
-from dxl_servo_driver.transports import open_transport, Transport
+from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.transports import open_transport, Transport
 import pytest
 
 JOINTS = {'arm': 1, 'elbow': 2}

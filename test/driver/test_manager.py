@@ -13,7 +13,7 @@ from typing import Any, List, Tuple
 from dxl_servo_driver.config import validate
 from dxl_servo_driver.driver import cycle as cycle_module
 from dxl_servo_driver.driver.context import SharedLock
-from dxl_servo_driver.manager import Manager, ManagerError
+from dxl_servo_driver.driver.manager import Manager, ManagerError
 from dxl_servo_driver.models import xm430
 from dxl_servo_driver.protocol import Instruction
 from manager_rig import (

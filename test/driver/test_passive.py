@@ -21,10 +21,10 @@ from builtin_interfaces.msg import Duration
 from conditions import wait_until
 from control_msgs.action import FollowJointTrajectory, GripperCommand as GripperAction
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver.driver.transports import open_transport, SimTransport, Transport
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import Instruction, StreamParser
 from dxl_servo_driver.sim.port import SimPortHandler
-from dxl_servo_driver.transports import open_transport, SimTransport, Transport
 from dxl_servo_driver_msgs.msg import GripperCommand
 from node_harness import NodeHarness, sim_params
 import pytest

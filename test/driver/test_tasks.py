@@ -2,7 +2,7 @@
 
 from typing import List
 
-from dxl_servo_driver.tasks import Steps, Task, TaskRunner
+from dxl_servo_driver.driver.tasks import Steps, Task, TaskRunner
 
 
 class Clock:

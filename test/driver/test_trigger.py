@@ -14,9 +14,9 @@ from typing import Any, Callable, Dict, Iterator
 
 from conditions import wait_until
 from dxl_servo_driver import config as cfg
+from dxl_servo_driver.driver.transports import open_transport, Transport
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
-from dxl_servo_driver.transports import open_transport, Transport
 from node_harness import NodeHarness, sim_params, startup_failure
 from processes import NodeProcess, params_yaml, StartVirtualBus
 import pytest

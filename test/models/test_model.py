@@ -2,7 +2,7 @@
 
 import math
 
-from dxl_servo_driver import state_block
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.models import ALL_MODELS, Model, model_for, modes, X_MODELS, xm430
 from dxl_servo_driver.models.units import units_for
 from hypothesis import given, strategies as st

@@ -1,5 +1,7 @@
 """
-The package's layering (ARCHITECTURE.md): ros -> driver -> bus/transport -> protocol/models.
+The package's layering (ARCHITECTURE.md): the layers are folders, each importing only below it.
+
+ros, tool -> driver, arm -> bus -> config, port -> protocol, models -> errors, timerslack.
 
 Nothing but the transport registry reaches the simulator; only the node imports rclpy, only
 the serial transport the serial library; no module imports itself through others (a circle).
@@ -15,7 +17,7 @@ HARDWARE_MODULES = ('dynamixel_sdk', 'serial')
 # Modules allowed to import each group (paths relative to the package).
 ROS_ALLOWED: set = set()   # modules outside ros/ allowed to import ROS: none
 ROS_PACKAGE = 'ros/'   # the node's parts
-HARDWARE_ALLOWED = {'serial_port.py'}
+HARDWARE_ALLOWED = {'port/serial_device.py'}
 
 
 def imported_modules(path: pathlib.Path) -> set:
@@ -43,35 +45,51 @@ def test_only_the_node_imports_ros_and_only_the_transport_imports_serial() -> No
 
 
 def test_the_simulator_and_model_import_neither() -> None:
-    for path in list((PACKAGE / 'sim').glob('*.py')) + [PACKAGE / 'state_block.py',
-                                                        PACKAGE / 'protocol.py']:
+    for path in list((PACKAGE / 'sim').glob('*.py')) + [PACKAGE / 'driver' / 'state_block.py',
+                                                        *(PACKAGE / 'protocol').glob('*.py')]:
         modules = imported_modules(path)
         assert not modules & (set(ROS_MODULES) | set(HARDWARE_MODULES)), path.name
 
 
-# Each module's layer: a module may import the package's modules of its own layer or below.
+# Each folder's layer (and the few modules every layer shares, at the package root): a module may
+# import its own folder, or a folder of a lower layer; two folders of one layer never import each
+# other (the arm's logic and the driver are side by side, as are the node and the tool).
 LAYERS = {
-    'scan.py': 3, 'ros': 3, 'tool': 3,
-    'manager.py': 2, 'driver': 2, 'tasks.py': 2, 'config.py': 2, 'state_block.py': 2,
-    'registers.py': 2,
-    'transports.py': 2, 'trajectory.py': 2, 'commands.py': 2,
-    'gripper.py': 2,
-    'bus.py': 1, 'wire.py': 1, 'transactions.py': 1, 'group_reads.py': 1, 'serial_port.py': 1,
-    'protocol.py': 0, 'protocol1.py': 0, 'errors.py': 0, 'models': 0, 'termios2.py': 0,
-    'raw_port.py': 0,
-    'timerslack.py': 0,
+    'ros': 5, 'tool': 5,
+    'driver': 4, 'arm': 4,
+    'bus': 3,
+    'config': 2, 'port': 2,
+    'protocol': 1, 'models': 1,
+    'errors.py': 0, 'timerslack.py': 0,
 }
+# What the simulator may build on: it is a peer of the serial port, below the bus.
+SIM_MAY_IMPORT = {'protocol', 'models', 'errors.py', 'timerslack.py', 'port'}
+# Layers whose face (the folder's __init__) is all another folder may import.
+FACES = ('protocol', 'port', 'bus')
+
+
+def folder_of(module: str) -> str:
+    """Return the folder (or root module file) of a dxl_servo_driver module name."""
+    parts = module.split('.')
+    if parts[0] != 'dxl_servo_driver' or len(parts) < 2:
+        raise ValueError(module)
+    return parts[1] if parts[1] in LAYERS or parts[1] == 'sim' else parts[1] + '.py'
+
+
+def face_modules(folder: str) -> set:
+    """Return what another folder may import of a folder with a face: it, and what it exports."""
+    tree = ast.parse((PACKAGE / folder / '__init__.py').read_text())
+    exported = next((ast.literal_eval(node.value) for node in tree.body
+                     if isinstance(node, ast.Assign) and node.targets[0].id == '__all__'), [])
+    face = f'dxl_servo_driver.{folder}'
+    return {face} | {f'{face}.{name}' for name in exported
+                     if (PACKAGE / folder / f'{name}.py').exists()}
 
 
 def layer_of(module: str) -> int:
     """Return the layer of a dxl_servo_driver module name (sim: -1, outside the order)."""
-    parts = module.split('.')
-    if parts[0] != 'dxl_servo_driver' or len(parts) < 2:
-        raise ValueError(module)
-    if parts[1] == 'sim':
-        return -1
-    key = parts[1] if parts[1] in LAYERS else parts[1] + '.py'
-    return LAYERS[key]
+    folder = folder_of(module)
+    return -1 if folder == 'sim' else LAYERS[folder]
 
 
 def package_imports(path: pathlib.Path) -> set:
@@ -88,31 +106,48 @@ def package_imports(path: pathlib.Path) -> set:
     return {name for name in names if name.startswith('dxl_servo_driver.')}
 
 
-def test_every_module_imports_only_its_layer_or_below() -> None:
+def test_every_module_imports_only_its_folder_or_a_lower_layer() -> None:
     checked = 0
     for path in sorted(PACKAGE.rglob('*.py')):
         relative = path.relative_to(PACKAGE).as_posix()
-        top = relative.split('/')[0]
-        if top == 'sim' or relative == '__init__.py':
+        own = folder_of('dxl_servo_driver.' + relative[:-3].replace('/', '.'))
+        if own == 'sim' or relative == '__init__.py':
             continue
-        own = LAYERS[top]
+        assert own in LAYERS, f'{relative} is in no layer: give its folder one'
         for module in package_imports(path):
-            assert layer_of(module) != -1, f'{relative} imports the simulator ({module})'
-            assert layer_of(module) <= own, f'{relative} (layer {own}) imports {module}'
+            folder = folder_of(module)
+            assert folder != 'sim', f'{relative} imports the simulator ({module})'
+            if folder == own:
+                continue
+            assert LAYERS[folder] < LAYERS[own], (
+                f'{relative} ({own}, layer {LAYERS[own]}) imports {module} '
+                f'({folder}, layer {LAYERS[folder]})')
+            if folder in FACES:
+                assert module in face_modules(folder), (
+                    f'{relative} imports {module}: import {folder}/ by its face')
         checked += 1
     assert checked >= 12
+
+
+def test_the_package_root_holds_only_what_every_layer_shares() -> None:
+    root = sorted(path.name for path in PACKAGE.glob('*.py'))
+    assert root == ['__init__.py', 'errors.py', 'timerslack.py'], root
+    folders = sorted(path.name for path in PACKAGE.iterdir()
+                     if path.is_dir() and (path / '__init__.py').exists())
+    assert folders == sorted([name for name in LAYERS if not name.endswith('.py')] + ['sim'])
 
 
 def test_only_the_transport_registry_reaches_the_simulator() -> None:
     for path in sorted(PACKAGE.rglob('*.py')):
         relative = path.relative_to(PACKAGE).as_posix()
-        if relative.startswith('sim/') or relative == 'transports.py':
+        if relative.startswith('sim/') or relative == 'driver/transports.py':
             continue
         assert 'dxl_servo_driver.sim' not in path.read_text(), relative
-    # The simulator itself builds on the bottom layer only (tables, models, packets).
+    # The simulator itself builds on the bottom layer and the port (tables, models, packets).
     for path in (PACKAGE / 'sim').glob('*.py'):
         for module in package_imports(path):
-            assert layer_of(module) in (-1, 0), f'sim/{path.name} imports {module}'
+            assert folder_of(module) in SIM_MAY_IMPORT | {'sim'}, (
+                f'sim/{path.name} imports {module}')
 
 
 def _module_name(path: pathlib.Path) -> str:

@@ -13,8 +13,9 @@ import struct
 from typing import Dict, Iterator, List, Optional, Tuple
 
 from adapter_faults import FaultyPort
-from dxl_servo_driver import state_block
-from dxl_servo_driver.bus import BlockTemplate, Bus
+from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.bus.group_reads import BlockTemplate
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.protocol import (
     fast_sync_size, Instruction, parse_fast_status, PROTOCOL_2, STATUS_OVERHEAD)

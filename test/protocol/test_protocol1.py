@@ -1,7 +1,7 @@
 """Protocol 1.0 framing: checksum, encoding, the bus's scan and the servos' stream parser."""
 
 from dxl_servo_driver.protocol import Frame, Framer, Packet
-from dxl_servo_driver.protocol1 import (
+from dxl_servo_driver.protocol.protocol1 import (
     BROADCAST_ID, checksum, decode_packet, encode_instruction, encode_status, ERROR_BIT_NAMES,
     error_text, ErrorBit, Instruction1, PROTOCOL_1, scan_frames, STATUS_OVERHEAD, StreamParser1)
 from hypothesis import given, strategies as st

@@ -19,11 +19,11 @@ from builtin_interfaces.msg import Duration
 from conditions import wait_until
 from control_msgs.action import FollowJointTrajectory, GripperCommand, ParallelGripperCommand
 from control_msgs.msg import JointTolerance
-from dxl_servo_driver.gripper import GripperError
+from dxl_servo_driver.arm.gripper import GripperError
+from dxl_servo_driver.driver.transports import open_transport, SimTransport, Transport
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.sim.port import SimPortHandler
-from dxl_servo_driver.transports import open_transport, SimTransport, Transport
 from node_harness import NodeHarness, sim_params
 import pytest
 from rclpy.qos import QoSProfile

@@ -10,8 +10,8 @@ the servos.
 import struct
 import time
 
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.clock import TickClock
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.sim.bus import SimBus

@@ -11,8 +11,8 @@ import sys
 import time
 from typing import Iterator
 
-from dxl_servo_driver import protocol1
 from dxl_servo_driver.protocol import encode_instruction, Instruction
+from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.adapter_faults import FaultEngine, Faults
 from dxl_servo_driver.sim.bus import SimBus

@@ -15,12 +15,12 @@ import random
 import time
 from typing import Callable, Iterator, Optional, Tuple, TypeVar
 
-from dxl_servo_driver import protocol1
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import CommError, CommTimeout
 from dxl_servo_driver.models import model_for, model_named, xm430
+from dxl_servo_driver.port.serial_device import open_port
 from dxl_servo_driver.protocol import encode_instruction, Instruction, StreamParser
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control, motor
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.collision import frame_bits, uart_read, wired_and

@@ -3,7 +3,7 @@
 from dxl_servo_driver import protocol
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import Instruction
-from dxl_servo_driver.protocol1 import (
+from dxl_servo_driver.protocol.protocol1 import (
     BROADCAST_ID, encode_instruction, encode_status, ErrorBit, Instruction1)
 from dxl_servo_driver.sim.bus import SimBus
 import pytest

@@ -15,9 +15,9 @@ import subprocess
 from typing import Optional
 
 from conditions import wait_until
-from dxl_servo_driver import serial_port
 from dxl_servo_driver.bus import Bus
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.port import serial_device as serial_port
+from dxl_servo_driver.port.serial_device import open_port
 from node_harness import Client, NodeHarness, sim_params
 from processes import (
     node_executable, NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)

@@ -18,7 +18,7 @@ from dxl_cli import DXL, EXPECT_TIMEOUT_S, finish, near, TOLERANCE
 from dxl_servo_driver import config
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.models import model_named
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.port.serial_device import open_port
 from dxl_servo_driver.tool import calibrate, yaml_edit
 from node_harness import Client
 import pexpect

@@ -9,12 +9,13 @@ import subprocess
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ament_index_python.packages import get_package_prefix
-from dxl_servo_driver import config, scan
+from dxl_servo_driver import config
 from dxl_servo_driver.bus import Bus, FRAMERS
 from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.models import ALL_MODELS, model_for, modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
-from dxl_servo_driver.serial_port import open_port
+from dxl_servo_driver.port.serial_device import open_port
+from dxl_servo_driver.tool import scan_bus as scan
 import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest

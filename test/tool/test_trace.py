@@ -8,13 +8,13 @@ import time
 from typing import List
 
 from ament_index_python.packages import get_package_prefix
-from dxl_servo_driver import protocol1
+from dxl_servo_driver.bus.wire import TracedPort
 from dxl_servo_driver.protocol import (
     decode_packet, encode_instruction, encode_status, Instruction)
-from dxl_servo_driver.protocol1 import Instruction1, PROTOCOL_1
+from dxl_servo_driver.protocol import protocol1
+from dxl_servo_driver.protocol.protocol1 import Instruction1, PROTOCOL_1
 from dxl_servo_driver.tool.session import open_bus, retried
 from dxl_servo_driver.tool.trace import decode, read_trace
-from dxl_servo_driver.wire import TracedPort
 from processes import fresh_domain_id, NodeProcess, params_yaml, StartVirtualBus
 
 TIMEOUT_S = 60.0

@@ -1,8 +1,8 @@
 """
 The byte-level port the bus reads and writes, as a serial device and the simulator offer it.
 
-Layer 0, so that the simulator (built on layer 0 only) and the bus (layer 1, serial_port.py) share
-one statement of it.
+Below the bus and beside the simulator, so that the simulator's ports and the serial device
+(serial_device.py) meet one statement of what the bus needs.
 """
 
 from typing import Protocol
@@ -22,12 +22,18 @@ class RawPort(Protocol):
     simulator's ports, a test's wrapper) this protocol's defaults: not paced, never waited.
     """
 
-    # Its bytes come at wire speed, never sooner (a device): a reader may sleep until they can
-    # be there. A port that answers inside write() (the simulator's) is not paced.
-    paced: bool = False
-    # Whether the last read had to wait for its bytes (they were not all there when it began);
-    # asked of a paced port only.
-    waited: bool = False
+    @property
+    def paced(self) -> bool:
+        """
+        Say whether its bytes come at wire speed, never sooner (a device).
+
+        A reader may then sleep until they can be there. A port that answers inside write()
+        (the simulator's) is not paced.
+        """
+
+    @property
+    def waited(self) -> bool:
+        """Say whether the last read had to wait for its bytes (asked of a paced port only)."""
 
     @property
     def baudrate(self) -> int:
@@ -55,10 +61,10 @@ class RawPort(Protocol):
 
 
 def port_paced(port: RawPort) -> bool:
-    """Return whether port's bytes come at wire speed (RawPort.paced, its default if unsaid)."""
-    return bool(getattr(port, 'paced', RawPort.paced))
+    """Return whether port's bytes come at wire speed (not paced if it does not say)."""
+    return bool(getattr(port, 'paced', False))
 
 
 def port_waited(port: RawPort) -> bool:
-    """Return whether port's last read waited for its bytes (RawPort.waited, or its default)."""
-    return bool(getattr(port, 'waited', RawPort.waited))
+    """Return whether port's last read waited for its bytes (never, if it does not say)."""
+    return bool(getattr(port, 'waited', False))

@@ -52,19 +52,18 @@ from typing import (
 from dxl_servo_driver import config
 from dxl_servo_driver import models
 from dxl_servo_driver import timerslack
-from dxl_servo_driver.bus import Bus, DEADLINE_SLACK_S, FRAMERS, sweep_spacing_s
+from dxl_servo_driver.bus import (
+    broadcast_quiet_s, Bus, BusTrace, DEADLINE_SLACK_S, FRAMERS, sweep_spacing_s)
 from dxl_servo_driver.driver.adapter import LINUX, measure_latency_timer, Measured
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.models.names import OTHER_MODELS
+from dxl_servo_driver.port import adapter_latency_timer_ms, open_port
 from dxl_servo_driver.protocol import (
     BROADCAST_ID, Framer, Instruction, MAX_ID, RETURN_DELAY_UNIT_S)
-from dxl_servo_driver.serial_port import adapter_latency_timer_ms, open_port
 from dxl_servo_driver.tool.common import (
     EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_PORT, EXIT_USAGE)
-from dxl_servo_driver.transactions import broadcast_quiet_s
-from dxl_servo_driver.wire import BusTrace
 
 # The exit statuses are the dxl tool's (scan is one of its commands): 1 is 'no servo found'.
 EXIT_NOT_FOUND = EXIT_FAILED

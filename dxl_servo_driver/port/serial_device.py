@@ -22,7 +22,7 @@ from typing import Callable, Optional, TypeVar
 
 from dxl_servo_driver.errors import PortError
 from dxl_servo_driver.models import xm430
-from dxl_servo_driver.termios2 import set_tty_speed
+from dxl_servo_driver.port.termios2 import set_tty_speed
 import serial
 
 WRITE_BLOCKED_S = 1.0   # a write that finds no room in the driver's buffer this long fails

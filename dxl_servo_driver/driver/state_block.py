@@ -15,7 +15,7 @@ from dxl_servo_driver.models import Item, Model, modes
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, fast_status_size, fast_sync_size, INSTRUCTION_OVERHEAD, RETURN_DELAY_UNIT_S,
     STATUS_OVERHEAD)
-from dxl_servo_driver.protocol1 import (
+from dxl_servo_driver.protocol.protocol1 import (
     INSTRUCTION_OVERHEAD as INSTRUCTION_OVERHEAD_1, STATUS_OVERHEAD as STATUS_OVERHEAD_1)
 
 

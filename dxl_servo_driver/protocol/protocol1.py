@@ -24,7 +24,7 @@ from enum import IntEnum
 from typing import Dict, Sequence
 
 from dxl_servo_driver.errors import BadRequest
-from dxl_servo_driver.protocol import Frame, Packet, StreamParser
+from dxl_servo_driver.protocol.protocol2 import Frame, Packet, StreamParser
 
 HEADER = b'\xff\xff'
 BROADCAST_ID = 0xFE

@@ -22,9 +22,9 @@ import math
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from dxl_servo_driver import models
-from dxl_servo_driver import registers
 from dxl_servo_driver.errors import ConfigurationError
 from dxl_servo_driver.models import modes, xm430
+from dxl_servo_driver.models import registers
 from dxl_servo_driver.protocol import MAX_ID
 import yaml  # type: ignore[import-untyped]
 

@@ -9,7 +9,8 @@ must stay ordered, the homing offset position mode ignores). Pure: no I/O.
 
 from typing import Mapping
 
-from dxl_servo_driver.models import Item, Model, modes
+from dxl_servo_driver.models import modes
+from dxl_servo_driver.models.base import Item, Model
 
 # Registers the driver manages itself; a configuration may not set them.
 DRIVER_OWNED = frozenset(

@@ -20,9 +20,9 @@ to cycle_end() or abort_read() (driver/cycle.ReadInFlight).
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
-from dxl_servo_driver import state_block
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
+from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.context import Context, Logs, SharedLock, Stats
 from dxl_servo_driver.driver.cycle import Cycle, SILENT_AFTER_FAILURES
 from dxl_servo_driver.driver.goals import Goals
@@ -36,11 +36,11 @@ from dxl_servo_driver.driver.servo import (
     IDX_PWM, IDX_TEMPERATURE, IDX_TICK, IDX_TORQUE, IDX_VELOCITY, IDX_VOLTAGE, Log,
     ManagerError, PortState, Result, Roster, Servo, StaleGuard)
 from dxl_servo_driver.driver.setup import Setup
+from dxl_servo_driver.driver.tasks import Task, TaskRunner
+from dxl_servo_driver.driver.transports import open_transport, PortFactory, Transport
 from dxl_servo_driver.errors import CommError, Interrupted, PortError, Refused
+from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.tasks import Task, TaskRunner
-from dxl_servo_driver.transports import open_transport, PortFactory, Transport
 
 __all__ = [
     'BLOCK', 'IDX_CANARY', 'IDX_EFFORT', 'IDX_HW_ERROR', 'IDX_MOVING', 'IDX_MOVING_STATUS',

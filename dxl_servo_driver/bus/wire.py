@@ -31,7 +31,7 @@ leave the bus in order).
 Every wait is a blocking read with an absolute deadline on the monotonic clock, computed from
 the bytes expected, the baud rate, the servos' Return Delay Time and the USB adapter's latency
 timer: a device that never stops sending cannot hold a transaction past it. The serial device
-itself is serial_port.py's (or the simulator's port): the wire sees a RawPort.
+itself is port/serial_device.py's (or the simulator's port): the wire sees a RawPort.
 """
 
 import collections
@@ -42,9 +42,9 @@ import time
 from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple
 
 from dxl_servo_driver.errors import PortError
+from dxl_servo_driver.port import port_paced, port_waited, RawPort
 from dxl_servo_driver.protocol import BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, PROTOCOL_2
-from dxl_servo_driver.protocol1 import PROTOCOL_1
-from dxl_servo_driver.raw_port import port_paced, port_waited, RawPort
+from dxl_servo_driver.protocol.protocol1 import PROTOCOL_1
 
 # The framer of each protocol version, as configurations name them.
 FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}

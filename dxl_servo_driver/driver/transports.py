@@ -17,8 +17,7 @@ import importlib
 from typing import Any, Callable, Dict, Optional, Protocol
 
 from dxl_servo_driver.config import DriverConfig
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.serial_port import open_port as open_serial
+from dxl_servo_driver.port import open_port as open_serial, RawPort
 
 
 class Transport(Protocol):

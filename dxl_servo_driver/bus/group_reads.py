@@ -20,14 +20,14 @@ import struct
 import time
 from typing import Any, Callable, cast, Dict, List, Optional, Sequence, Tuple, Union
 
+from dxl_servo_driver.bus.transactions import Transactions
+from dxl_servo_driver.bus.wire import Request
 from dxl_servo_driver.errors import BadRequest, CommError, CommTimeout, PortError
+from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, crc16, FAST_HEAD_SIZE, FAST_PART_OVERHEAD, fast_status_head,
     fast_status_size, fast_sync_head, fast_sync_size, Framer, HEADER, Instruction,
     parse_fast_status, PROTOCOL_2, STATUS_OVERHEAD)
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.transactions import Transactions
-from dxl_servo_driver.wire import Request
 
 
 def _many(positions: Sequence[Any]) -> Callable[[Any], Tuple[Any, ...]]:

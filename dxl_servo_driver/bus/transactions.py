@@ -21,14 +21,14 @@ import time
 from typing import (
     Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Set, Tuple, TypeVar, Union)
 
+from dxl_servo_driver.bus.wire import ANSWER, CORRUPT, ECHO, port_lost, Request, STRAY, Wire
 from dxl_servo_driver.errors import (
     BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
 from dxl_servo_driver.models import Item
+from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, Frame, Framer, Instruction, MAX_ID,
     PROTOCOL_2, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
-from dxl_servo_driver.raw_port import RawPort
-from dxl_servo_driver.wire import ANSWER, CORRUPT, ECHO, port_lost, Request, STRAY, Wire
 
 # One-off reads differ in length over this many consecutive requests (see Transactions.read).
 READ_TAGS = 8
