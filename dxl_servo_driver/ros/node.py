@@ -1,20 +1,19 @@
 """
 The ROS 2 node: lifecycle transitions and the wiring of its parts over the manager.
 
-Its parts live beside it in dxl_servo_driver.ros: parameters (declarations, what changes
-when), the cycle runner (its own thread at loop_rate, so it never waits on the executor),
-messages (joint_states, servo_states), diagnostics, interfaces (command topics and services),
-the arm (trajectories, joint-state and gripper commands) and main (`ros2 run`). Topic and
-service callbacks only queue goals or call the manager, whose lock keeps one transaction on the
-bus at a time.
+Its parts live beside it in dxl_servo_driver.ros, each held by the node as an object or called
+with it: parameters (declarations, what changes when) and runtime (the configuration read from
+them, a runtime change's hook), the cycle runner (its own thread at loop_rate, so it never
+waits on the executor), publishing (joint_states, servo_states, /diagnostics: messages and
+diagnostics build them), interfaces (command topics and services), the arm (trajectories,
+joint-state and gripper commands), lifecycle_guard (rclpy's lifecycle internals) and main
+(`ros2 run`). Topic and service callbacks only queue goals or call the manager, whose lock
+keeps one transaction on the bus at a time.
 """
 
-import functools
 import threading
-import time
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Dict, List, Optional
 
-from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver import config as cfg
 from dxl_servo_driver.driver.manager import Manager, ManagerError, open_transport, PortFactory
 from dxl_servo_driver.errors import DriverError, Interrupted
@@ -22,16 +21,12 @@ from dxl_servo_driver.ros import parameters
 from dxl_servo_driver.ros.actions import Actions
 from dxl_servo_driver.ros.arm import Arm
 from dxl_servo_driver.ros.cycle import CycleRunner
-from dxl_servo_driver.ros.diagnostics import diagnostics
 from dxl_servo_driver.ros.follow import Follow
 from dxl_servo_driver.ros.interfaces import Interfaces
-from dxl_servo_driver.ros.messages import JointTable, servo_states, time_msg
-from dxl_servo_driver_msgs.msg import ServoStateArray
-from rcl_interfaces.msg import SetParametersResult
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from dxl_servo_driver.ros.lifecycle_guard import guard_change_state, state_label
+from dxl_servo_driver.ros.publishing import Publishing
+from dxl_servo_driver.ros.runtime import RuntimeParameters
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState
 
 __all__ = ['DriverNode', 'NODE_NAME', 'StartupFailure']
 
@@ -50,10 +45,9 @@ class DriverNode(LifecycleNode):
     """
     One bus of Dynamixel servos as a lifecycle node.
 
-    About 420 lines, on purpose: it is the one place where ROS meets the driver, so each
-    lifecycle transition, the parameters' declarations and runtime hooks, and the publishing
-    wiring are here, each a few lines handing work to the manager, the arm, the actions and
-    the cycle loop; what has logic of its own lives in those.
+    The lifecycle transitions and the wiring: each a few lines handing work to the manager,
+    the runtime parameters, the publishing, the arm, the actions and the cycle loop; what has
+    logic of its own lives in those.
     """
 
     def __init__(self, port_factory: PortFactory = open_transport, **kwargs: Any) -> None:
@@ -65,12 +59,9 @@ class DriverNode(LifecycleNode):
         super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True,
                          **kwargs)
         self._port_factory = port_factory
-        # Values declared from what the servos answered (see _read_config), and whether the
-        # node is declaring its own parameters (its set callback then takes them as they are).
-        self._from_servos: Dict[str, Any] = {}
-        self._declaring = False
+        self.runtime = RuntimeParameters(self)
         try:
-            self.config = self._read_config()
+            self.config = self.runtime.read()
         except cfg.ConfigError as exc:
             raise StartupFailure(f'invalid configuration: {exc}') from None
         parameters.declare(self, self.config)
@@ -84,33 +75,28 @@ class DriverNode(LifecycleNode):
         self.actions = Actions(self)
         # A follower copies a leader's joint_states (follow.topic) in the cycle: a step too.
         self.follow = Follow(self)
+        self.publishing = Publishing(self)
         # The cycle steps the arm (trajectories, gripper goals) and publishes what it read.
-        self._runner = CycleRunner(self, self.config.loop_rate, self._publish,
+        self._runner = CycleRunner(self, self.config.loop_rate, self.publishing.publish,
                                    [self.arm, self.follow.follower])
-        self._take_rates(self.config)
-        self._last_state_s = 0.0
-        self._joints = JointTable(self.manager.joints)
-        # joint_states and servo_states exist while configured (lifecycle publishers: they
-        # publish only while active); /diagnostics always, it says why nothing else does.
-        self.joint_states_pub: Any = None
-        self.servo_states_pub: Any = None
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._interfaces = Interfaces(self)
-        # Diagnostics come from the executor, not the cycle: they still speak when the cycle
-        # has stopped or stalled.
-        self._diagnostics_timer = self.create_timer(1.0, self._publish_diagnostics)
         # The cycle thread cannot change the lifecycle state itself; this does, within 0.2 s.
         # (A timer, not a guard condition: the EventsExecutor does not wait on those.)
         self._watchdog = self.create_timer(0.2, self._on_cycle_failed)
-        self._guard_change_state()
+        guard_change_state(self)
         self.add_pre_set_parameters_callback(parameters.coerce)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_on_set_parameters_callback(self.runtime.on_set)
 
     # what the parts see of the node ---------------------------------------------------------
     @property
     def active(self) -> bool:
         """Return whether the node is active: commands and services are taken."""
         return self._active
+
+    @property
+    def cycle(self) -> CycleRunner:
+        """Return the cycle runner."""
+        return self._runner
 
     @property
     def cycle_threaded(self) -> bool:
@@ -135,115 +121,28 @@ class DriverNode(LifecycleNode):
     def _loop_period_s(self) -> float:
         return self._runner.period_s
 
-    # parameters -----------------------------------------------------------------------------
-    def _read_config(self) -> cfg.DriverConfig:
-        params = {name: p.value for name, p in self.get_parameters_by_prefix('').items()}
-        # A value the node declared from the servo (the torque constant in use) is not the
-        # file's: unless someone set it since, the joint still leaves it to the servo.
-        for name, value in self._from_servos.items():
-            if params.get(name) == value:
-                del params[name]
-        return cfg.validate(params)
+    def lifecycle_state(self) -> str:
+        """Return the label of the lifecycle state ('unconfigured', 'active', ...)."""
+        return state_label(self)
 
     def _new_manager(self, config: cfg.DriverConfig) -> Manager:
         log = self.get_logger()
         return Manager(config, info=log.info, warn=log.warning, error=log.error,
                        port_factory=self._port_factory, should_stop=self.stop_requested.is_set)
 
-    def _take_rates(self, config: cfg.DriverConfig) -> None:
-        self._runner.period_s = 1.0 / config.loop_rate
-        self._state_period_s = (1.0 / config.state_rate) if config.state_rate else 0.0
-        self._set_health_period()
-        self._thresholds: Dict[str, float] = {
-            name: getattr(config, name) for name in cfg.THRESHOLDS}
-
-    def _set_health_period(self) -> None:
-        # servo_states and the 1 Hz diagnostics need the health part of the state block.
-        self.manager.health_period_s = min(1.0, self._state_period_s or 1.0)
-
-    def _on_set_parameters(self, params: List[Parameter]) -> SetParametersResult:
-        if self._declaring:
-            return SetParametersResult(successful=True)
-        try:
-            changes = parameters.check_changes(params, self._lifecycle_state(), self._thresholds)
-        except DriverError as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        for name, value in changes.items():
-            # Kept in the configuration too: configure compares it with the parameters.
-            self.config = cfg.replace(self.config, **{name: value})
-            self.runtime_hooks()[name](value)
-        return SetParametersResult(successful=True)
-
-    def runtime_hooks(self) -> Dict[str, Callable[[Any], None]]:
-        """
-        Return what a change of each runtime parameter does while the node runs.
-
-        One entry per `runtime=True` parameter of config.PARAMS (test_parameters checks that
-        none is missing): a new runtime parameter needs its hook here, or a set would fail.
-        """
-        def state_rate(value: float) -> None:
-            self._state_period_s = (1.0 / value) if value else 0.0
-            self._set_health_period()
-
-        def command_timeout(value: float) -> None:
-            self.manager.config = cfg.replace(self.manager.config, command_timeout=value)
-
-        def goal_tolerance(value: float) -> None:
-            self.arm.trajectories.tolerance_rad = value
-
-        def read_from_config(value: Any) -> None:
-            pass   # each new trajectory or goal reads it from self.config
-
-        hooks: Dict[str, Callable[[Any], None]] = {
-            'loop_rate': self._runner.set_rate, 'state_rate': state_rate,
-            'command_timeout': command_timeout, 'goal_tolerance': goal_tolerance,
-            'goal_time_tolerance': read_from_config, 'action_monitor_rate': read_from_config}
-        for name in cfg.THRESHOLDS:   # the diagnostics' WARN/ERROR levels
-            hooks[name] = functools.partial(self._thresholds.__setitem__, name)
-        return hooks
-
     # lifecycle -----------------------------------------------------------------------------
-    def _guard_change_state(self) -> None:
-        """
-        Answer an impossible lifecycle request with success false, not a dead node.
-
-        rclpy's LifecycleNode (Jazzy, rclpy 7.1) has no public hook for this: its change_state
-        service raises RCLError out of the executor for a transition the state does not have
-        (`ros2 lifecycle set` of activate twice), which ends the spin. So the service's callback
-        (`_service_change_state.callback`) is wrapped, and the state read from
-        `_state_machine.current_state` (private members, like _rclpy.RCLError);
-        test/ros/test_rclpy_internals.py fails the day an rclpy release changes any of them.
-        """
-        service = self._service_change_state
-        original = service.callback
-
-        def change_state(request: Any, response: Any) -> Any:
-            try:
-                return original(request, response)
-            except _rclpy.RCLError as exc:
-                state = self._state_machine.current_state[1]
-                transition = request.transition.label or str(request.transition.id)
-                self.get_logger().warning(
-                    f'lifecycle transition {transition!r} refused in state {state!r}: '
-                    f'{str(exc).splitlines()[0]}')
-                response.success = False
-                return response
-        service.callback = change_state
-
-    def _lifecycle_state(self) -> str:
-        return str(self._state_machine.current_state[1])
-
     def _reconfigure(self) -> bool:
         """Take parameters set while unconfigured; False (logged) when they do not validate."""
         try:
-            config = self._read_config()
+            config = self.runtime.read()
         except cfg.ConfigError as exc:
             self.get_logger().error(f'invalid configuration: {exc}')
             return False
         if config != self.config:
             self.config = config
             self.manager = self._new_manager(config)
-            self._take_rates(config)
+            self._runner.period_s = 1.0 / config.loop_rate
+            self.publishing.take(config)
             self.arm.take(config)
             self.follow.take(config)
             self.get_logger().info('configure: using the parameters set since the last one')
@@ -269,32 +168,12 @@ class DriverNode(LifecycleNode):
 
     def _configured(self) -> TransitionCallbackReturn:
         """Take what the servos said at configure: tables, values in use, publishers."""
-        # The servos said which model they are: their conversions are known now, and the
-        # values the configuration left to them are shown (ros2 param get).
-        self._joints = JointTable(self.manager.joints)
-        self._from_servos = {
-            f'{servo.name}.torque_constant': servo.units.torque_constant_nm_per_a
-            for servo in self.manager.joints if servo.joint.torque_constant_nm_per_a is None}
-        for servo in self.manager.joints:
-            # The limits in force when the file gives none: the servo's, in joint units.
-            low, high = servo.joint_position_range()
-            for key, value in (('min_position', low), ('max_position', high)):
-                if getattr(servo.joint, key) is None:
-                    self._from_servos[f'{servo.name}.{key}'] = value
-        self._declaring = True
-        try:
-            parameters.show_from_servos(self, self._from_servos)
-        finally:
-            self._declaring = False
-        problem = self._joints.check_wire()
-        if problem:
-            self.get_logger().warning(f'{problem}: joint_states go out as message objects '
-                                      '(slower)')
-        if self.joint_states_pub is None:
-            self.joint_states_pub = self.create_lifecycle_publisher(
-                JointState, 'joint_states', 10)
-            self.servo_states_pub = self.create_lifecycle_publisher(
-                ServoStateArray, '~/servo_states', 10)
+        # The servos said which model they are: the values the configuration left to them are
+        # shown (ros2 param get), and their conversions are known now.
+        values = self.runtime.from_servos(self.manager.joints)
+        with self.runtime.declaring():
+            parameters.show_from_servos(self, values)
+        self.publishing.configured()
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -377,7 +256,7 @@ class DriverNode(LifecycleNode):
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Close the port; parameters may be changed until the next configure."""
         self.manager.close()
-        self._drop_publishers()
+        self.publishing.drop()
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -391,17 +270,11 @@ class DriverNode(LifecycleNode):
         if self.manager.bus is not None:
             self._torque_off_and_say('error')
         self.manager.close()
-        self._drop_publishers()
+        self.publishing.drop()
         reason = f': {self.cycle_failure!r}' if self.cycle_failure is not None else ''
         self.get_logger().error(f'in the error state{reason}; port closed, node unconfigured '
                                 '(configure and activate to try again)')
         return TransitionCallbackReturn.SUCCESS
-
-    def _drop_publishers(self) -> None:
-        for publisher in (self.joint_states_pub, self.servo_states_pub):
-            if publisher is not None:
-                self.destroy_lifecycle_publisher(publisher)
-        self.joint_states_pub = self.servo_states_pub = None
 
     def _stop_cycle(self, why: str) -> None:
         self._active = False
@@ -479,29 +352,5 @@ class DriverNode(LifecycleNode):
 
     def _on_cycle_failed(self) -> None:
         # In the executor: the lifecycle moves through deactivate (ERROR) to on_error.
-        if self.cycle_failure is not None and self._lifecycle_state() == 'active':
+        if self.cycle_failure is not None and self.lifecycle_state() == 'active':
             self.trigger_deactivate()
-
-    # publishing -----------------------------------------------------------------------------
-    def _publish(self, stamp_ns: int, read_ok: bool) -> None:
-        # The arm watched these samples first (Arm.watch_samples, a step of the cycle).
-        if read_ok and self.joint_states_pub is not None:
-            msg = self._joints.message(stamp_ns)
-            if msg is not None:
-                self.joint_states_pub.publish(msg)
-        now = time.monotonic()
-        if self._state_period_s and now - self._last_state_s >= self._state_period_s:
-            self._last_state_s = now
-            if self.servo_states_pub is not None:
-                self.servo_states_pub.publish(
-                    servo_states(self.manager.order, time_msg(stamp_ns), self.arm.grasping()))
-
-    def _publish_diagnostics(self) -> None:
-        try:
-            self.diagnostics_pub.publish(diagnostics(
-                self.get_fully_qualified_name(), self.config, self.manager,
-                self._runner.facts(), self._lifecycle_state(), self._thresholds,
-                self.get_clock().now().to_msg(),
-                {**self.arm.facts(), **self.follow.follower.facts()}, self.arm.grasping()))
-        except Exception as exc:  # noqa: B902 - a report must not stop the executor
-            self.get_logger().error(f'diagnostics failed: {exc!r}', throttle_duration_sec=10.0)

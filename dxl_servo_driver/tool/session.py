@@ -90,14 +90,23 @@ def add_bus_arguments(parser: argparse.ArgumentParser, baud: int = FACTORY_BAUD,
 
 def load_params(path: str) -> driver_config.DriverConfig:
     """Return a driver parameter file's configuration; ToolError (exit 2) saying what is bad."""
+    return read_params(path)[1]
+
+
+def read_params(path: str, label: str = '--params ') -> Tuple[str, driver_config.DriverConfig]:
+    """
+    Return a driver parameter file's text and configuration; ToolError (exit 2) if it is bad.
+
+    The error names the file as `{label}{path}: ` unless the reason names it already.
+    """
     try:
         driver_config.check_parameter_file(path)
         with open(path, encoding='utf-8') as stream:
             text = stream.read()
-        return driver_config.validate(yaml_edit.parameters_of(text))
+        return text, driver_config.validate(yaml_edit.parameters_of(text))
     except (ConfigurationError, yaml_edit.EditError, OSError) as exc:
         said = str(exc)
-        raise ToolError(said if path in said else f'--params {path}: {said}', EXIT_USAGE) \
+        raise ToolError(said if path in said else f'{label}{path}: {said}', EXIT_USAGE) \
             from None
 
 

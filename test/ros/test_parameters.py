@@ -73,7 +73,7 @@ def test_every_runtime_parameter_has_a_change_hook_and_is_set_while_active() -> 
         assert h.node is not None
         h.joint_states.wait(lambda m: len(m.name) == len(JOINTS))
         runtime = {spec.name for spec in PARAMS if spec.runtime}
-        assert set(h.node.runtime_hooks()) == runtime
+        assert set(h.node.runtime.hooks()) == runtime
         for spec in PARAMS:
             if not spec.runtime:
                 continue

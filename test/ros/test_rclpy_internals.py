@@ -1,5 +1,5 @@
 """
-The rclpy internals the node leans on are still there (ros/node.py, _guard_change_state).
+The rclpy internals the node leans on are still there (ros/lifecycle_guard.py).
 
 rclpy's LifecycleNode gives no public hook to answer an impossible transition with success
 false instead of an exception that ends the executor's spin, nor a public getter of the current
