@@ -14,11 +14,12 @@ import time
 from typing import (
     Any, Callable, Dict, Generic, List, Mapping, Optional, Sequence, Tuple, TypeVar)
 
-from adapter_faults import Faults, FaultyPort
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver.driver.transports import open_transport, PortFactory, SimTransport, Transport
 from dxl_servo_driver.models import modes
 from dxl_servo_driver.ros.node import DriverNode, NODE_NAME, StartupFailure
+from dxl_servo_driver.sim.fault_engine import Faults
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver_msgs.msg import JointCommand, ServoStateArray
 from dxl_servo_driver_msgs.srv import (

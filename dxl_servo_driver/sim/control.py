@@ -9,7 +9,7 @@ the SimBus or FaultEngine method it calls.
 
 Four groups of commands: faults of one servo (SimBus: `drop ID P`, `error ID KIND`, ...),
 faults of the USB adapter between the servos and the pty (`adapter ...`: the FaultEngine of
-sim/adapter_faults.py, which acts on every reply), a hand on a servo's horn (`turn`, `stops`),
+sim/fault_engine.py, which acts on every reply), a hand on a servo's horn (`turn`, `stops`),
 and inspection (`get`, `dump`, `stats`, `help`).
 
 A servo is named by its id when exactly one servo (plugged or not) has it, or by `#N`, the N-th
@@ -30,8 +30,8 @@ from typing import Callable, Iterator
 
 from dxl_servo_driver.models import ALL_MODELS, Model
 from dxl_servo_driver.protocol import MAX_ID
-from dxl_servo_driver.sim.adapter_faults import FaultEngine
 from dxl_servo_driver.sim.bus import ERROR_KINDS, ServoRef, SimBus, TURN_SECONDS
+from dxl_servo_driver.sim.fault_engine import FaultEngine
 from dxl_servo_driver.sim.memory import MANUAL_MODEL
 
 MAX_SERVO_ID = MAX_ID  # 253..255 are reserved / broadcast in Protocol 2.0

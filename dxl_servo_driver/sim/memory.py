@@ -8,7 +8,8 @@ and shared by every servo of that model, with the addresses the servo reads on e
 
 Two ways in:
 - get()/set() by name: raw internal access for the physics and the servo's own bookkeeping
-  (no access or range checks), the register store protocol of dynamics.RegisterStore;
+  (no access or range checks), the register store protocol of
+  present_registers.RegisterStore;
 - read()/plan_write()/commit(): what the bus sees, with the manual's checks, raising TableError
   with the status error code.  A write is planned on a copy and committed whole, so a packet with
   any error writes nothing.

@@ -34,7 +34,7 @@ Instruction bytes are handed to the servos as soon as they arrive on the pty, so
 is sampled up to one instruction's transmission time early; with --timing wire the replies are
 then released at the times computed by sim/timing.py.
 
-Between the servos and the pty sits a USB adapter (sim/adapter_faults.FaultEngine) whose faults
+Between the servos and the pty sits a USB adapter (sim/fault_engine.FaultEngine) whose faults
 the `adapter ...` control lines set: the replies reach it when they would reach a real adapter
 (at their wire times with --timing wire), and it hands them to the pty. While every one of its
 faults is off and it holds nothing, the replies go straight to the pty. Its packets are cut by
@@ -61,9 +61,9 @@ from dxl_servo_driver.models import Model, model_for, model_named, ModelError, x
 from dxl_servo_driver.port import set_tty_speed, tty_speed_bps
 from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control
-from dxl_servo_driver.sim.adapter_faults import FaultEngine
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
+from dxl_servo_driver.sim.fault_engine import FaultEngine
 from dxl_servo_driver.sim.memory import MANUAL_MODEL, Memory
 from dxl_servo_driver.sim.timing import fine_timer_slack, hybrid_wait, LatenessStats, SPIN_S
 from dxl_servo_driver.sim.timing import WireScheduler

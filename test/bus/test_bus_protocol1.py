@@ -3,13 +3,13 @@
 import random
 from typing import Dict, Iterator, Tuple
 
-from adapter_faults import FaultyPort
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.errors import (
     BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol.protocol1 import ErrorBit, PROTOCOL_1
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest

@@ -13,10 +13,11 @@ node: its cycle, its services and its torque-off at the end.
 import time
 from typing import Any, Callable, Dict, Tuple
 
-from adapter_faults import Faults, FaultyPort
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.bus.wire import Counters
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.fault_engine import Faults
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 from node_harness import faulty_harness, NodeHarness, sim_params

@@ -12,7 +12,6 @@ import threading
 import time
 from typing import Callable, Dict, Iterator, List, Tuple
 
-from adapter_faults import FaultyPort
 from dxl_servo_driver import protocol
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.driver import clock
@@ -21,6 +20,7 @@ from dxl_servo_driver.errors import BadRequest, CommTimeout, CorruptReply
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.protocol.protocol1 import PROTOCOL_1
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import dynamixel_sdk as sdk

@@ -4,7 +4,6 @@ import struct
 import time
 from typing import Dict, Iterator, List, Tuple
 
-from adapter_faults import FaultyPort
 from dxl_servo_driver import protocol
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig, validate
@@ -17,6 +16,7 @@ from dxl_servo_driver.errors import CommTimeout, CorruptReply
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.sim import servo as sim_servo
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 from fake_clock import FakeClock

@@ -13,9 +13,9 @@ checked against the simulator's own record of where the wheel was.
 import time
 from typing import List
 
-from adapter_faults import Faults
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.models.units import units_for
+from dxl_servo_driver.sim.fault_engine import Faults
 from node_harness import faulty_harness, sim_params
 import pytest
 from truth import Messages, stamp_s, Truth

@@ -146,8 +146,11 @@ def test_only_the_transport_registry_reaches_the_simulator() -> None:
     # The simulator itself builds on the bottom layer and the port (tables, models, packets).
     for path in (PACKAGE / 'sim').glob('*.py'):
         for module in package_imports(path):
-            assert folder_of(module) in SIM_MAY_IMPORT | {'sim'}, (
-                f'sim/{path.name} imports {module}')
+            folder = folder_of(module)
+            assert folder in SIM_MAY_IMPORT | {'sim'}, f'sim/{path.name} imports {module}'
+            if folder in FACES:
+                assert module in face_modules(folder), (
+                    f'sim/{path.name} imports {module}: import {folder}/ by its face')
 
 
 def _module_name(path: pathlib.Path) -> str:

@@ -12,7 +12,6 @@ block.
 import struct
 from typing import Dict, Iterator, List, Optional, Tuple
 
-from adapter_faults import FaultyPort
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.bus.group_reads import BlockTemplate
 from dxl_servo_driver.driver import state_block
@@ -20,6 +19,7 @@ from dxl_servo_driver.models import model_for
 from dxl_servo_driver.protocol import (
     fast_sync_size, Instruction, parse_fast_status, PROTOCOL_2, STATUS_OVERHEAD)
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 import pytest

@@ -18,10 +18,11 @@ import threading
 import time
 from typing import Any, Dict, List
 
-from adapter_faults import Faults, FaultyPort
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.driver.clock import TICK_PERIOD_MS
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.fault_engine import Faults
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos
 from lifecycle_msgs.msg import Transition

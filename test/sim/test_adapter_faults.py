@@ -5,11 +5,13 @@ import threading
 import time
 from typing import Callable, Iterator, TypeVar
 
-from adapter_faults import AdapterProxy, FaultEngine, Faults, FaultyPort, PARTIAL_FLUSH_S
 from dxl_servo_driver import protocol
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.protocol import encode_instruction, HEADER, Instruction
+from dxl_servo_driver.sim.adapter_proxy import AdapterProxy
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.fault_engine import FaultEngine, Faults, PARTIAL_FLUSH_S
+from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortDisconnected, SimPortHandler
 from dxl_servo_driver.sim.virtual_bus import configure_servos, tty_speed_bps
 import dynamixel_sdk as sdk

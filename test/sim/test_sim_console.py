@@ -14,8 +14,8 @@ from typing import Iterator
 from dxl_servo_driver.protocol import encode_instruction, Instruction
 from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control
-from dxl_servo_driver.sim.adapter_faults import FaultEngine, Faults
 from dxl_servo_driver.sim.bus import SimBus
+from dxl_servo_driver.sim.fault_engine import FaultEngine, Faults
 from processes import LINE_TIMEOUT_S, ROOT, StartVirtualBus, VirtualBusProcess
 import pytest
 import serial

@@ -9,7 +9,7 @@ the first). Judged on the servo's own clock (the rig's 1 ms steps), never the wa
 
 from dxl_servo_driver.protocol import ErrorCode
 from dxl_servo_driver.sim import velocity_profile
-from dxl_servo_driver.sim.dynamics import MODE_POSITION, MODE_VELOCITY
+from dxl_servo_driver.sim.control_modes import MODE_POSITION, MODE_VELOCITY
 from dxl_servo_driver.sim.velocity_profile import (
     PROFILE_RECTANGULAR, PROFILE_TRAPEZOIDAL, PROFILE_TRIANGULAR)
 import pytest

@@ -33,10 +33,11 @@ import threading
 import time
 from typing import Any, Dict, Iterator, List, Optional, Sequence, Tuple
 
-from adapter_faults import AdapterProxy, Faults
 from diagnostic_msgs.msg import DiagnosticArray
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
+from dxl_servo_driver.sim.adapter_proxy import AdapterProxy
+from dxl_servo_driver.sim.fault_engine import Faults
 from node_harness import Client
 from processes import (
     NodeProcess, params_yaml, START_TIMEOUT_S, VirtualBusProcess)

@@ -1,7 +1,7 @@
 """
 Never stop, never lie: the node on the simulated bus behind a misbehaving adapter.
 
-The node's port is the simulator's, wrapped in adapter_faults.FaultyPort (echo, freezes, late
+The node's port is the simulator's, wrapped in sim/faulty_port.FaultyPort (echo, freezes, late
 copies of earlier replies, duplicates, truncation, noise, drops). A thread samples the
 simulator's true wheel position with wall-clock times, so every published sample can be checked
 against what the servo really did when it was read. Also here: recovery that does not stall
@@ -15,11 +15,11 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Tuple
 
-from adapter_faults import Faults
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from dxl_servo_driver.models import model_for, xm430
 from dxl_servo_driver.models.units import units_for
 from dxl_servo_driver.ros.node import StartupFailure
+from dxl_servo_driver.sim.fault_engine import Faults
 from lifecycle_msgs.msg import Transition
 from node_harness import faulty_harness, NodeHarness, sim_params, startup_failure
 import pytest
