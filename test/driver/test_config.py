@@ -181,9 +181,9 @@ def test_joint_parameters_are_checked_by_their_specs() -> None:
 
 def test_a_parameter_in_the_table_and_not_in_driverconfig_fails_by_name(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    from dxl_servo_driver import config
-    config._agrees_with_the_table()   # as imported: they agree
-    last = config.PARAMS[-1]
-    monkeypatch.setattr(config, 'PARAMS', config.PARAMS[:-1])
+    from dxl_servo_driver.config import driver_config
+    driver_config._agrees_with_the_table()   # as imported: they agree
+    last = driver_config.PARAMS[-1]
+    monkeypatch.setattr(driver_config, 'PARAMS', driver_config.PARAMS[:-1])
     with pytest.raises(TypeError, match=last.name):
-        config._agrees_with_the_table()
+        driver_config._agrees_with_the_table()

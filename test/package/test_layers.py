@@ -65,7 +65,7 @@ LAYERS = {
 # What the simulator may build on: it is a peer of the serial port, below the bus.
 SIM_MAY_IMPORT = {'protocol', 'models', 'errors.py', 'timerslack.py', 'port'}
 # Layers whose face (the folder's __init__) is all another folder may import.
-FACES = ('protocol', 'port', 'bus')
+FACES = ('protocol', 'port', 'bus', 'config')
 
 
 def folder_of(module: str) -> str:
