@@ -1,7 +1,7 @@
 """
 Test helper: the misbehaving adapter, under the name the tests import it by.
 
-It lives in the simulator package now (dxl_servo_driver/sim/adapter_faults.py), where virtual_bus
+It lives in the simulator package (dxl_servo_driver/sim/adapter_faults.py), where virtual_bus
 holds one too (its `adapter ...` console commands); the tests' names are re-exported here.
 """
 
