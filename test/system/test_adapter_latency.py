@@ -150,9 +150,9 @@ def test_a_scanned_file_runs_at_the_rate_its_bus_carries(workdir: pathlib.Path,
                                '--output', str(scanned)], capture_output=True, text=True,
                               stdin=subprocess.DEVNULL, timeout=START_TIMEOUT_S)
         assert done.returncode == 0, done.stderr
-        # loop_rate 100 Hz, above a 16 ms timer's limit; and more configure attempts: a pty's answers come
-        # within a file's 1 ms only while the machine runs virtual_bus at once (a loaded one
-        # may not, for tens of ms; test_follow_pair's files do the same).
+        # loop_rate 100 Hz, above a 16 ms timer's limit; and more configure attempts: a pty's
+        # answers come within a file's 1 ms only while the machine runs virtual_bus at once (a
+        # loaded one may not, for tens of ms; test_follow_pair's files do the same).
         text = scanned.read_text().replace(
             '  ros__parameters:\n', '  ros__parameters:\n    loop_rate: 100.0\n'
             '    ping_retries: 10\n')

@@ -3,8 +3,8 @@
 
 README's tuning line names a joint and a parameter file, no port nor baud rate: with --params
 FILE the bus is the file's (not the factory 57,600 bps, which misses servos set up at 1 Mbps)
-and a servo may be named by its joint; --port/--baud given still win; a bad file or an unknown joint is one error line,
-exit 2. The installed `dxl` on virtual_bus.
+and a servo may be named by its joint; --port/--baud given still win; a bad file or an unknown
+joint is one error line, exit 2. The installed `dxl` on virtual_bus.
 """
 
 import pathlib
