@@ -19,10 +19,8 @@ def in_executor(node: Any, call: Callable[[], Any]) -> Any:
     Return what call returns, run in the executor thread of node (a one-shot timer).
 
     rclpy's ActionClient files a request's future only after sending it: sent from another
-    thread, an answer the executor takes in between is dropped as unexpected (50 goals sent
-    from a test's thread got 0, 1 or 15 answers in full runs; a single goal was left
-    unanswered for 10 s beside a second make test). In the executor's own thread nothing is
-    taken in between.
+    thread, an answer the executor takes in between is dropped as unexpected, and its goal is
+    never answered. In the executor's own thread nothing is taken in between.
     """
     made: List[Any] = []
 

@@ -20,8 +20,8 @@ class Truth:
     bus lock: at a packet, a register read, a console command). Each new value is recorded
     there with the wall-clock time (what a node stamps with), read right after the change: a
     value's end is never dated early, so a sample judged older than its stamp really was (a
-    thread sampling every millisecond was starved on a loaded machine, and its gaps had to be
-    guessed around). A reply carries the value held when its request arrived.
+    thread sampling every millisecond is starved on a loaded machine, and its gaps would have
+    to be guessed around). A reply carries the value held when its request arrived.
     """
 
     def __init__(self, h: NodeHarness, servo_id: int) -> None:

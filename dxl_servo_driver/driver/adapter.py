@@ -3,8 +3,9 @@ The USB adapter's latency timer: the one the file declares, checked against the 
 
 An FTDI adapter holds what it receives until its latency timer runs out (Linux's default is
 16 ms; our udev rule sets 1 ms) before the host sees a byte. Every reply deadline counts on that
-timer, so a file saying 1 ms behind a 16 ms adapter made every answer come after its deadline
-and the node refused to start, "servo did not answer": the most common Dynamixel set-up mistake.
+timer, so a file saying 1 ms behind a 16 ms adapter puts every answer after its deadline and
+a node that trusted the file would not start, "servo did not answer": the most common Dynamixel
+set-up mistake.
 So at configure, before any servo is pinged, the adapter's real timer is measured
 (`measure_latency_timer`, which `scan` uses too for the file it writes):
 

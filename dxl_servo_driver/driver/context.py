@@ -29,10 +29,10 @@ class SharedLock(_CRLock):
 
     Python's locks are not fair: a cycle running flat out lets the lock go and takes it again
     before a service's thread woken by the release is even scheduled, so a service (a register
-    read, a goal written at once) waited 190 ms at the median, up to 0.8 s, for a bus cycle of
-    under 1 ms (docs/performance.md). A caller that has to wait is counted (arrived, then served
-    once it holds the lock); the cycle chains no read while anyone waits (`waiting`), and lets
-    those who wait in before it starts a read (`let_waiting_in`). Releasing is the RLock's own.
+    read, a goal written at once) would wait out hundreds of bus cycles for its turn. A caller
+    that has to wait is counted (arrived, then served once it holds the lock); the cycle chains
+    no read while anyone waits (`waiting`), and lets those who wait in before it starts a read
+    (`let_waiting_in`). Releasing is the RLock's own.
     """
 
     def __init__(self) -> None:

@@ -17,8 +17,8 @@ its end to the goal through a _Channel, and the goal's coroutine turns them into
 here, off the cycle thread.
 
 Why a node and an executor of their own: rclpy's EventsExecutor (the node's default executor,
-for its command latency) never delivers an action goal (rclpy 7.1, measured here: the goal
-request times out). So the action servers live on `<node>_actions`, spun by a
+for its command latency) never delivers an action goal (rclpy 7.1: the goal request times
+out). So the action servers live on `<node>_actions`, spun by a
 SingleThreadedExecutor in the thread `dxl_actions`, under the driver node's own names
 (`<node>/follow_joint_trajectory`): whatever the node's executor, MoveIt finds them where it
 looks.

@@ -24,8 +24,8 @@ class _Wire:
     """
     One joint_states layout in CDR (the bytes rmw puts on the wire), with the names in place.
 
-    Publishing a JointState object costs about three times what publishing ready bytes does
-    (its conversion from Python to C, measured alone); the names, counts and paddings never
+    Publishing a JointState object converts it from Python to C on every publish, which costs
+    more than the rest of publishing; the names, counts and paddings never
     change for one set of joints, so they are laid out once and each cycle only packs the stamp
     and three arrays.
     """

@@ -69,7 +69,7 @@ def break_ebadf(port: SerialPort, master: int) -> int:
 
 
 def break_no_fd(port: SerialPort, master: int) -> int:
-    # What a closed pyserial object used to hold.
+    # As a closed pyserial object: no descriptor.
     taken, port._fd = port._fd, None  # type: ignore[assignment]
     return taken
 

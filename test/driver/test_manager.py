@@ -613,9 +613,9 @@ def test_a_clean_block_puts_the_next_read_on_the_wire_before_it_is_taken(
 @pytest.mark.parametrize('chain', [True, False])
 def test_a_request_waiting_for_the_lock_goes_before_the_next_read(
         active: Tuple[Rig, Manager], chain: bool, monkeypatch: pytest.MonkeyPatch) -> None:
-    # A cycle running flat out let the lock go and took it back before a waiting service's
-    # thread was even woken (and a chained read never let it go): the service waited many
-    # cycles. Now whoever waits has it before the next read starts.
+    # A cycle running flat out lets the lock go and takes it back before a waiting service's
+    # thread is even woken (and a chained read never lets it go), so the service would wait
+    # many cycles: whoever waits has it before the next read starts.
     rig, manager = active
     # How long a read is held back for a waiter: the node's 20 ms end the wait for one that
     # never comes; here, long enough that a busy machine slow to wake the waiter cannot make

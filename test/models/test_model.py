@@ -159,8 +159,8 @@ def test_state_block_decodes_signed_values() -> None:
 
 
 def test_bus_budget_matches_the_spec_formula() -> None:
-    # The benchmark's count (README, Benchmark): sync read of 10 bytes = (14 + N) + 21 N,
-    # sync write of 4 bytes = 14 + 5 N.
+    # The benchmark's count (docs/performance.md, Benchmark): sync read of 10 bytes
+    # = (14 + N) + 21 N, sync write of 4 bytes = 14 + 5 N.
     for n in (1, 6, 12, 24):
         budget = state_block.bus_budget(n, 4_000_000, read_length=10, write_length=4)
         assert budget.bytes_per_cycle == (14 + n) + 21 * n + 14 + 5 * n

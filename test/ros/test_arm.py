@@ -143,7 +143,7 @@ REFUSALS = {
     'unknown joint': (['shoulder', 'nose'], [(1.0, [0.1, 0.1], [])], "unknown joint 'nose'"),
     'times going back': (['shoulder'], [(1.0, [0.1], []), (0.5, [0.2], [])], 'not after'),
     'NaN': (['shoulder'], [(1.0, [math.nan], [])], 'nan'),
-    # Found by the action's tests: velocities were not checked (zip stopped at the positions).
+    # Velocities are checked as positions are (not only as far as the positions go).
     'infinite velocity': (['shoulder'], [(1.0, [0.1], [math.inf])], 'has velocity inf'),
     'beyond limits': (['shoulder'], [(1.0, [3.5], [])], 'beyond its limits'),
     'ragged': (['shoulder', 'elbow'], [(1.0, [0.1], [])], '1 positions for 2 joints'),

@@ -8,8 +8,8 @@ threads named dxl_bus_cycle, the runner's own count, /diagnostics' cycle_threads
 left held by a read of an earlier activation, the node cycles again and never faster than its
 loop rate (counted by the node in windows of known length), no read fails, and no sample is
 refused as older than its request. How much slower than its rate it runs is not judged: a busy
-machine decides that. (The failure once seen, 9 Hz of 100, had causes that are checked here
-whatever the machine: a second cycle thread, and reads given the replies of an aborted one.)
+machine decides that. What slows it whatever the machine is checked here: a second cycle
+thread, and reads given the replies of an aborted one.
 """
 
 import random

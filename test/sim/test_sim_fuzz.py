@@ -167,8 +167,8 @@ def test_random_bytes_never_crash(chunks: list[tuple[bytes, float, int]]) -> Non
 # ... and of ids 1 and 9 (not on the bus): the packet is shorter than its length field says.
 @example(packets=[(b'\xff\xff\xfd\x00\x01\x03\x00\x01\x19N', 0.0),
                   (b'\xff\xff\xfd\x00\xfe\t\x00\x8a\x00\x00\x00\x00\x01\t\xfaB', 0.0)])
-# Found by make fuzz: a Fast Sync Read of 0x8000 bytes from ids 0 and 1, whose one status packet
-# cannot be framed (the simulator raised struct.error); it is ignored, as malformed ones are.
+# ... and a Fast Sync Read of 0x8000 bytes from ids 0 and 1, whose one status packet cannot be
+# framed: it is ignored, as malformed ones are.
 @example(packets=[(b'\xff\xff\xfd\x00\xfe\t\x00\x8a\x00\x00\x00\x80\x00\x01\xc9\xce', 0.0)])
 def test_valid_frames_with_random_contents_never_crash(
         packets: list[tuple[bytes, float]]) -> None:

@@ -2,8 +2,8 @@
 An adapter whose latency timer is not the file's: the node finds out, says so, and runs.
 
 The most common Dynamixel set-up mistake: an FTDI adapter without the udev rule (Linux's default
-latency timer, 16 ms) and a parameter file saying `latency_timer: 1.0`. Every reply came ~15 ms
-after its deadline and the node refused to start ("servo id 1 did not answer 3 pings"). Here the
+latency timer, 16 ms) and a parameter file saying `latency_timer: 1.0`: every reply comes ~15 ms
+after a deadline taken from the file ("servo id 1 did not answer 3 pings"). Here the
 installed node runs against `virtual_bus --timing wire --latency-ms 16` on a pty (no sysfs file
 says a pty's timer, so the node must time the replies), and against the bus layer directly for
 the measurement itself.
@@ -136,12 +136,11 @@ def found_latency(output: str, declared: float) -> float:
 def test_a_scanned_file_runs_at_the_rate_its_bus_carries(workdir: pathlib.Path,
                                                          domain_id: int) -> None:
     """
-    Scan's file and the node's bus limit carry the latency timer measured (issue 38).
+    Scan's file and the node's bus limit carry the latency timer measured.
 
-    `scan` wrote `latency_timer: 16.0` for a pty, and the node on that file said "loop_rate
-    100 Hz is above what the bus can carry (54 Hz)", then ran at 100 Hz. Now scan writes the
-    timer it measured, and the node's bus limit counts the timer it measures itself, whatever
-    the file says.
+    A file with Linux's 16 ms for a pty would have the node say "loop_rate 100 Hz is above what
+    the bus can carry (54 Hz)" and then run at 100 Hz. Scan writes the timer it measured, and
+    the node's bus limit counts the timer it measures itself, whatever the file says.
     """
     link = str(workdir / 'ttyDXL')
     bus = VirtualBusProcess(ids=(1, 2, 3, 4, 5, 6), baud_bps=1000000, link=link)
@@ -151,9 +150,9 @@ def test_a_scanned_file_runs_at_the_rate_its_bus_carries(workdir: pathlib.Path,
                                '--output', str(scanned)], capture_output=True, text=True,
                               stdin=subprocess.DEVNULL, timeout=START_TIMEOUT_S)
         assert done.returncode == 0, done.stderr
-        # loop_rate 100 Hz, as in the issue; and more configure attempts: a pty's answers come
-        # within a file's 1 ms only while the machine runs virtual_bus at once (a loaded one
-        # may not, for tens of ms; test_follow_pair's files do the same).
+        # loop_rate 100 Hz, above a 16 ms timer's limit; and more configure attempts: a pty's
+        # answers come within a file's 1 ms only while the machine runs virtual_bus at once (a
+        # loaded one may not, for tens of ms; test_follow_pair's files do the same).
         text = scanned.read_text().replace(
             '  ros__parameters:\n', '  ros__parameters:\n    loop_rate: 100.0\n'
             '    ping_retries: 10\n')

@@ -563,8 +563,8 @@ def run_chaos(duration_s: float, workdir: pathlib.Path, rig: Rig, client: Client
     schedule = make_schedule(duration_s, SEED)
     chaos = Chaos(rig)
     # The start is not what is tried here: configure waits out a simulator and a proxy (a
-    # thread of this busy process) held up for a second (10 attempts, 120 ms, were not enough
-    # once beside a second make test).
+    # thread of this busy process) held up for a second (10 attempts, 120 ms, are not enough
+    # on a busy machine).
     params = params_yaml(link, JOINTS, baud_rate=BAUD, loop_rate=LOOP_RATE_HZ,
                          latency_timer=LATENCY_TIMER_MS, ping_retries=100)
     node = NodeProcess(workdir, params, domain_id=domain_id)

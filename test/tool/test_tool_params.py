@@ -1,10 +1,10 @@
 """
 `dxl` commands with --params: the port, baud rate and protocol of the driver's parameter file.
 
-Issue 38: README's tuning line `dxl step ID --to 0.5 --png step.png` failed as written (--port
-was required, then the factory 57,600 bps missed servos set up at 1 Mbps). With --params FILE
-the bus is the file's and a servo may be named by its joint; --port/--baud given still win; a
-bad file or an unknown joint is one error line, exit 2. The installed `dxl` on virtual_bus.
+README's tuning line names a joint and a parameter file, no port nor baud rate: with --params
+FILE the bus is the file's (not the factory 57,600 bps, which misses servos set up at 1 Mbps)
+and a servo may be named by its joint; --port/--baud given still win; a bad file or an unknown
+joint is one error line, exit 2. The installed `dxl` on virtual_bus.
 """
 
 import pathlib
