@@ -29,7 +29,7 @@ setup(
     entry_points={
         'console_scripts': [
             'node = dxl_servo_driver.ros.main:main',
-            'scan = dxl_servo_driver.tool.scan_bus:main',
+            'scan = dxl_servo_driver.tool.scan:main',
             'dxl = dxl_servo_driver.tool.main:main',
             'virtual_bus = dxl_servo_driver.sim.virtual_bus:main',
         ],

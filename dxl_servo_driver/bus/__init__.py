@@ -18,13 +18,22 @@ and protocol1.PROTOCOL_1), never a branch on its version in these layers. A sett
 where its layer reads it (a test patches wire.SLACK_DECAY_REQUESTS, not a name here).
 """
 
+from dxl_servo_driver.bus.discovery import (
+    all_bauds, default_bauds, DEFAULT_PROTOCOL, find_one_servo, FoundServo,
+    LINUX_LATENCY_TIMER_MS, MAX_RETURN_DELAY_S, NO_SERVO_HINT, NoServo, NotOneServo, OneServo,
+    plan, protocol_1_bauds, scan_bus, ScanResult, set_baud, Step, sweep_wait_s)
 from dxl_servo_driver.bus.group_reads import GroupReads, SyncRead, SyncResult
-from dxl_servo_driver.bus.transactions import broadcast_quiet_s, READ_TAGS, sweep_spacing_s
+from dxl_servo_driver.bus.transactions import READ_TAGS
 from dxl_servo_driver.bus.wire import BusTrace, DEADLINE_SLACK_S, FRAMERS, MAX_DEADLINE_SLACK_S
 
 __all__ = [
-    'broadcast_quiet_s', 'Bus', 'BusTrace', 'DEADLINE_SLACK_S', 'FRAMERS', 'MAX_DEADLINE_SLACK_S',
-    'READ_TAGS', 'sweep_spacing_s', 'SyncRead', 'SyncResult',
+    'Bus', 'BusTrace', 'DEADLINE_SLACK_S', 'FRAMERS', 'MAX_DEADLINE_SLACK_S', 'READ_TAGS',
+    'SyncRead', 'SyncResult',
+    # the search of a bus (discovery.py)
+    'all_bauds', 'default_bauds', 'DEFAULT_PROTOCOL', 'find_one_servo', 'FoundServo',
+    'LINUX_LATENCY_TIMER_MS', 'MAX_RETURN_DELAY_S', 'NO_SERVO_HINT', 'NoServo', 'NotOneServo',
+    'OneServo', 'plan', 'protocol_1_bauds', 'scan_bus', 'ScanResult', 'set_baud', 'Step',
+    'sweep_wait_s',
 ]
 
 

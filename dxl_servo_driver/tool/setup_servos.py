@@ -30,15 +30,14 @@ import time
 from typing import List, Optional, Sequence, Set, Tuple
 
 from dxl_servo_driver import config, models
-from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver.bus import (
+    Bus, default_bauds, find_one_servo, FRAMERS, MAX_RETURN_DELAY_S, NoServo, NotOneServo,
+    OneServo, protocol_1_bauds, set_baud)
 from dxl_servo_driver.errors import CommError, ConfigurationError, PortError
 from dxl_servo_driver.models.base import Model
 from dxl_servo_driver.protocol import MAX_ID
 from dxl_servo_driver.tool.common import (
     EXIT_INTERRUPTED, EXIT_OK, EXIT_PORT, EXIT_USAGE, ToolError)
-from dxl_servo_driver.tool.scan_bus import (
-    default_bauds, find_one_servo, MAX_RETURN_DELAY_S, NoServo, NotOneServo, OneServo,
-    protocol_1_bauds, set_baud)
 from dxl_servo_driver.tool.servo import read_items, torque_off, write_verified
 from dxl_servo_driver.tool.session import connect, FACTORY_BAUD, open_bus, ServoLink
 from dxl_servo_driver.tool.yaml_edit import EditError, parameters_of

@@ -7,7 +7,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 # Every layer below the node, and the tool's scan (the `scan` executable).
 CHECKED = ['errors.py', 'timerslack.py', 'protocol', 'models', 'port', 'config', 'bus', 'driver',
-           'arm', 'sim', 'tool/scan_bus.py']
+           'arm', 'sim', 'tool/scan.py', 'tool/scan_file.py', 'tool/scan_report.py']
 
 
 def test_the_layers_below_the_node_type_check() -> None:

@@ -10,12 +10,16 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ament_index_python.packages import get_package_prefix
 from dxl_servo_driver import config
-from dxl_servo_driver.bus import Bus, FRAMERS
+from dxl_servo_driver.bus import (
+    Bus, default_bauds, find_one_servo, FoundServo, FRAMERS, MAX_RETURN_DELAY_S, NoServo,
+    NotOneServo, OneServo, protocol_1_bauds)
 from dxl_servo_driver.errors import CommError
 from dxl_servo_driver.models import ALL_MODELS, model_for, modes, xm430
 from dxl_servo_driver.models.names import OTHER_MODELS
 from dxl_servo_driver.port.serial_device import open_port
-from dxl_servo_driver.tool import scan_bus as scan
+from dxl_servo_driver.tool import scan
+from dxl_servo_driver.tool.scan_file import build_parameters, choose_baud, render_parameter_file
+from dxl_servo_driver.tool.scan_report import describe
 import pexpect
 from processes import StartVirtualBus, VirtualBusProcess
 import pytest
@@ -123,11 +127,11 @@ def test_ids_restrict_the_scan_to_those_ids_at_every_baud(start: Starter,
                    XM430_LINE.format(id=3, baud=57600, mode='position', errors='none')]
     progress = [line for line in err if line.startswith('scanning')]
     # Protocol 1.0 where a 1.0 model runs out of the box.
-    ones = scan.protocol_1_bauds()
-    assert progress == [line for b in scan.default_bauds() for line in (
+    ones = protocol_1_bauds()
+    assert progress == [line for b in default_bauds() for line in (
         f'scanning {b} bps (ping of 3 id(s)) ...',
         f'scanning {b} bps, Protocol 1.0 (ping of 3 id(s)) ...') if b in ones or '1.0' not in line]
-    assert set(scan.default_bauds()) - set(ones) == {2000000, 4000000, 4500000, 6000000, 10500000}
+    assert set(default_bauds()) - set(ones) == {2000000, 4000000, 4500000, 6000000, 10500000}
 
 
 def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
@@ -158,7 +162,7 @@ def test_a_full_scan_finds_servos_at_1_mbps_and_the_file_takes_the_main_baud(
                    XM430_LINE.format(id=2, baud=1000000, mode='position', errors='none')]
     progress = [line for line in err if line.startswith('scanning')]
     # One broadcast ping a baud, its window ended once the line is quiet (1 Mbps: id 2).
-    assert progress == [f'scanning {b} bps (broadcast ping) ...' for b in scan.default_bauds()]
+    assert progress == [f'scanning {b} bps (broadcast ping) ...' for b in default_bauds()]
     assert any('different baud rates' in line and '1 servo at 1000000 bps' in line
                for line in err)
     text = output.read_text()
@@ -335,7 +339,7 @@ def test_help_exits_0(capsys: pytest.CaptureFixture) -> None:
 
 # ---- pure helpers -------------------------------------------------------------------------------
 def test_default_bauds_are_the_whole_table_most_common_first() -> None:
-    bauds = scan.default_bauds()
+    bauds = default_bauds()
     assert bauds[:2] == [57600, 1000000]
     assert bauds[-1] == 9600   # slowest broadcast ping last
     # Every baud some supported model takes: the X's, the Protocol 1.0 ones', the P's.
@@ -344,38 +348,38 @@ def test_default_bauds_are_the_whole_table_most_common_first() -> None:
 
 
 def servo(servo_id: int, baud_bps: int = 57600, model: int = 1030, mode: Optional[int] = 3,
-          errors: Optional[int] = 0, firmware: Optional[int] = 45) -> scan.FoundServo:
+          errors: Optional[int] = 0, firmware: Optional[int] = 45) -> FoundServo:
     """Return a FoundServo as scan_bus would build it."""
-    return scan.FoundServo(servo_id, baud_bps, model, firmware, mode, errors)
+    return FoundServo(servo_id, baud_bps, model, firmware, mode, errors)
 
 
 def test_describe_says_what_could_not_be_read() -> None:
-    assert scan.describe(servo(5, model=REFUSED, mode=None, errors=None, firmware=44)) == (
+    assert describe(servo(5, model=REFUSED, mode=None, errors=None, firmware=44)) == (
         f'id 5: model {REFUSED} ({OTHER_MODELS[REFUSED][0]}, not supported), firmware 44, '
         '57600 bps, '
         'mode not read (unknown control table), hardware errors: not read')
-    assert scan.describe(servo(9, model=9999, mode=None, errors=None)).startswith(
+    assert describe(servo(9, model=9999, mode=None, errors=None)).startswith(
         'id 9: model 9999 (unknown model)')
     # Every supported model is named, and its own table reads its mode.
-    assert scan.describe(servo(4, model=1060, mode=16)).startswith(
+    assert describe(servo(4, model=1060, mode=16)).startswith(
         'id 4: model 1060 (XL430-W250), firmware 45, 57600 bps, mode pwm')
-    assert scan.describe(servo(6, mode=None, errors=None, firmware=None)) == (
+    assert describe(servo(6, mode=None, errors=None, firmware=None)) == (
         'id 6: model 1030 (XM430-W210), firmware ? (no reply), 57600 bps, mode ? (no reply), '
         'hardware errors: ? (no reply)')
-    assert scan.describe(servo(7, mode=2, errors=0x24)).endswith(
+    assert describe(servo(7, mode=2, errors=0x24)).endswith(
         'mode 2 (not a valid mode), hardware errors: overheating, overload (0x24)')
-    assert scan.describe(servo(8, errors=0x40)).endswith('hardware errors: unnamed bits (0x40)')
+    assert describe(servo(8, errors=0x40)).endswith('hardware errors: unnamed bits (0x40)')
 
 
 def test_the_baud_with_most_servos_wins_and_a_tie_goes_to_the_first_scanned() -> None:
-    assert scan.choose_baud([servo(1, 1000000), servo(2, 57600), servo(3, 57600)]) == 57600
-    assert scan.choose_baud([servo(1, 1000000), servo(2, 57600)]) == 1000000
+    assert choose_baud([servo(1, 1000000), servo(2, 57600), servo(3, 57600)]) == 57600
+    assert choose_baud([servo(1, 1000000), servo(2, 57600)]) == 1000000
 
 
 def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
     found = [servo(1), servo(2, model=REFUSED), servo(3, mode=2), servo(4, mode=None),
              servo(5, 1000000), servo(6, mode=16, model=1060)]
-    params, comments = scan.build_parameters('/dev/ttyDXL', found, latency_timer_ms=1.0)
+    params, comments = build_parameters('/dev/ttyDXL', found, latency_timer_ms=1.0)
     assert params['joints'] == ['joint_1', 'joint_6']
     assert params['joint_6.operating_mode'] == 'pwm'
     assert (params['joint_1.model'], params['joint_6.model']) == ('XM430-W210', 'XL430-W250')
@@ -385,16 +389,16 @@ def test_servos_the_node_cannot_drive_are_left_out_as_comments() -> None:
         assert f'  id {servo_id}' in text
     assert 'set its baud_rate register to 1 (57600 bps)' in text
     with pytest.raises(ValueError, match='no servo the node could drive'):
-        scan.build_parameters('/dev/ttyDXL', [servo(2, model=REFUSED)])
+        build_parameters('/dev/ttyDXL', [servo(2, model=REFUSED)])
     with pytest.raises(ValueError, match='no servo found'):
-        scan.build_parameters('/dev/ttyDXL', [])
+        build_parameters('/dev/ttyDXL', [])
 
 
 def test_the_rendered_file_parses_back_to_the_same_parameters() -> None:
     port = "/dev/serial/by-id/usb-FTDI_it's #1: U2D2"   # quote, hash, colon and spaces
-    params, comments = scan.build_parameters(
+    params, comments = build_parameters(
         port, [servo(12, mode=1), servo(3, mode=4, model=1090)], 16.0)
-    text = scan.render_parameter_file(params, comments, 'header')
+    text = render_parameter_file(params, comments, 'header')
     assert flatten(yaml.safe_load(text)) == params
     # The joint's frame is there to be edited, at the values that leave the joint the servo.
     assert params['joint_3.offset'] == 0.0 and params['joint_3.reverse'] is False
@@ -574,12 +578,12 @@ def test_dxl_scan_is_the_same_command(start: Starter, tmp_path: pathlib.Path) ->
     assert bad.stderr.startswith('dxl scan: error: --baud 1234: no supported model'), bad.stderr
 
 
-def find_one(device: str, bauds: Optional[List[int]] = None) -> scan.OneServo:
+def find_one(device: str, bauds: Optional[List[int]] = None) -> OneServo:
     """Run find_one_servo on a port opened as scan opens it."""
     port = open_port(device, 57600)
     try:
-        bus = Bus(port, 57600, latency_timer_s=0.2, return_delay_s=scan.MAX_RETURN_DELAY_S)
-        return scan.find_one_servo(bus, bauds, bauds_1=scan.protocol_1_bauds())
+        bus = Bus(port, 57600, latency_timer_s=0.2, return_delay_s=MAX_RETURN_DELAY_S)
+        return find_one_servo(bus, bauds, bauds_1=protocol_1_bauds())
     finally:
         port.close()
 
@@ -588,22 +592,22 @@ def test_find_one_servo_says_what_answered_at_the_first_baud(virtual_bus: StartV
                                                              tmp_path: pathlib.Path) -> None:
     one = virtual_bus([7], 1000000, tmp_path / 'ttyAX',
                       extra_args=['--models', '12', '--timing', 'wire'])
-    assert find_one(one.device) == scan.OneServo(7, 12, 1.0, 1000000)
+    assert find_one(one.device) == OneServo(7, 12, 1.0, 1000000)
     xm = virtual_bus([1], 57600, tmp_path / 'ttyXM', extra_args=['--timing', 'wire'])
-    assert find_one(xm.device) == scan.OneServo(1, 1030, 2.0, 57600)
+    assert find_one(xm.device) == OneServo(1, 1030, 2.0, 57600)
 
 
 def test_find_one_servo_refuses_two_servos_and_collisions(virtual_bus: StartVirtualBus,
                                                           tmp_path: pathlib.Path) -> None:
     two = virtual_bus([1, 2], 57600, tmp_path / 'ttyTwo', extra_args=['--timing', 'wire'])
-    with pytest.raises(scan.NotOneServo, match=r'2 servos answered at 57600 bps \(id 1, id 2\)'):
+    with pytest.raises(NotOneServo, match=r'2 servos answered at 57600 bps \(id 1, id 2\)'):
         find_one(two.device)
     # The factory state: every new servo is id 1 at 57,600 bps, Return Delay Time 500 us.
     same = virtual_bus([1, 1], 57600, tmp_path / 'ttySame', extra_args=[
         '--timing', 'wire', '--return-delay-time', '250'])
-    with pytest.raises(scan.NotOneServo, match='replies collided at 57600 bps') as caught:
+    with pytest.raises(NotOneServo, match='replies collided at 57600 bps') as caught:
         find_one(same.device)
     assert caught.value.collided and caught.value.baud_bps == 57600
     nobody = virtual_bus([1], 57600, tmp_path / 'ttyNone', extra_args=['--unplugged'])
-    with pytest.raises(scan.NoServo, match='no servo answered at 57600, 1000000 bps'):
+    with pytest.raises(NoServo, match='no servo answered at 57600, 1000000 bps'):
         find_one(nobody.device, [57600, 1000000])
