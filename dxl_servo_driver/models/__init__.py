@@ -6,7 +6,7 @@ no ROS, no SDK. Both the driver and the simulator ask here for every address, si
 mode and error bit: base (the types), xm430 (the XM430 manual's table, the base of the
 others), layout (tables stated as differences), catalog (every model: the X series itself,
 the other families from their own modules such as mx), modes (the one mode table), units
-(raw <-> SI), names (the models refused, by name).
+(raw <-> SI), names (the models refused, by name), registers (what may be written where).
 
 Adding a model or a family (the contract the rest of the package counts on):
 

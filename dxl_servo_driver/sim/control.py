@@ -38,8 +38,6 @@ MAX_SERVO_ID = MAX_ID  # 253..255 are reserved / broadcast in Protocol 2.0
 MAX_TICK_MS = MANUAL_MODEL.item('realtime_tick').maximum   # the Realtime Tick's range
 MAX_SLOTS = 1000   # the #N a line may name (a bus has as many servos as --ids lists)
 _KIND_WORDS = '|'.join(ERROR_KINDS)
-# The bus the control lines act on (the name is kept from when it was a Protocol of its own).
-ControlledBus = SimBus
 
 
 class ControlError(ValueError):

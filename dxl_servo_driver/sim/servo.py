@@ -34,8 +34,8 @@ from dxl_servo_driver.protocol import (
 from dxl_servo_driver.sim import protocol2
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
 from dxl_servo_driver.sim.memory import Memory, TableError
-# Kept here under their old names: the 2.0 dispatch table (one dict: a test may stand a handler
-# in for one) and the BULK_WRITE parser.
+# Named here for the tests: the 2.0 dispatch table (one dict: a test may stand a handler in for
+# one) and the BULK_WRITE parser.
 from dxl_servo_driver.sim.protocol2 import HANDLERS as _HANDLERS  # noqa: F401
 from dxl_servo_driver.sim.protocol2 import parse_bulk_write  # noqa: F401
 

@@ -125,7 +125,7 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
 
 
 # Wire timing: a servo's physics may be up to this far behind when a packet arrives; between
-# packets the server advances one servo at a time (about 20 us each) when the next reply is not
+# packets the server advances one servo at a time (a short step each) when the next reply is not
 # due within IDLE_SLICE_S, while the bus has been busy within ACTIVE_WINDOW_S.
 PHYSICS_LAG_S = 0.004
 IDLE_SLICE_S = 150e-6
@@ -388,8 +388,9 @@ class VirtualBusServer:
         while self._pending and self._pending[0][0] <= self._clock() + self.spin_s:
             due_s, _, data = heapq.heappop(self._pending)
             # Spin for the moment only where the host's wait ends: the last reply pending. An
-            # earlier one is slept for (a few us late, still long before the next is due); a
-            # spin before every reply kept a core busy and took it from the driver under test.
+            # earlier one is slept for (a few us late, still long before the next is due):
+            # a spin before every reply would keep a core busy and take it from the driver under
+            # test.
             hybrid_wait(due_s, self._clock, spin_s=self.spin_s if not self._pending else 0.0)
             now_s = self._clock()
             self.stats.record(now_s - due_s)

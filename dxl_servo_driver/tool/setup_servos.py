@@ -8,7 +8,7 @@ Every new servo is id 1 at 57,600 bps with a Return Delay Time of 500 us, so a c
 answers nothing useful until each has been set up alone. For each servo of the file (its joints
 in order, a joint's second servo after it) or of --ids, in order, this asks for that servo to be
 connected (the servos set up before it may stay on the bus), finds it at any baud rate and
-protocol (scan.find_one_servo; at the bus's own baud rate the servos set up so far are told
+protocol (bus.find_one_servo; at the bus's own baud rate the servos set up so far are told
 apart by their ids), and writes Return Delay Time 0, then its id, then the baud rate (EEPROM:
 torque off for the writes, back on after if it was on), each read back; then it reads the three
 again at the new id and baud as the check, says so and goes on.
