@@ -48,7 +48,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
 sys.path.insert(0, str(ROOT))
 
-from dxl_servo_driver import state_block  # noqa: E402 - after the path set-up above
+from dxl_servo_driver.driver import state_block  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.models import model_for  # noqa: E402
 from dxl_servo_driver.models.units import units_for  # noqa: E402
 from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402

@@ -34,7 +34,7 @@ from typing import Any, Dict, List, Optional, Tuple
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parent), str(HERE)]
 
-from dxl_servo_driver import state_block  # noqa: E402 - after the path set-up above
+from dxl_servo_driver.driver import state_block  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402
 # run_bench sets the benchmark's own DDS domain on import, before rclpy is loaded.
 from run_bench import (  # noqa: E402
