@@ -11,7 +11,8 @@ the node's own work: its rate is the node's ceiling, its CPU per cycle the node'
 import pathlib
 import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
+if __name__ == '__main__':   # the node of this source tree (cycle_cost.py imports this module)
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
 from dxl_servo_driver.config import DriverConfig  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.driver.state_block import BLOCK_SHAPE  # noqa: E402

@@ -19,10 +19,8 @@ import time
 import tracemalloc
 from typing import Any, Callable, Dict, List
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-sys.path.insert(0, str(ROOT / 'bench'))
+if __name__ == '__main__':   # run alone: the package of this source tree, as run_bench.py
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
 from ceiling_node import replay_transport  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.config import validate  # noqa: E402

@@ -31,14 +31,13 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Tuple
 
-HERE = pathlib.Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE.parent), str(HERE)]
+if __name__ == '__main__':   # run alone: the package of this source tree, as run_bench.py
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 
-from dxl_servo_driver import state_block  # noqa: E402 - after the path set-up above
+from dxl_servo_driver.driver import state_block  # noqa: E402 - after the path set-up above
 from dxl_servo_driver.protocol import BITS_PER_BYTE  # noqa: E402
-# run_bench sets the benchmark's own DDS domain on import, before rclpy is loaded.
-from run_bench import (  # noqa: E402
-    cpu_seconds, MANUAL_UNITS, percentile, ROOT, VirtualBus)
+from harness import (  # noqa: E402
+    cpu_seconds, MANUAL_UNITS, own_dds_domain, percentile, ROOT, VirtualBus)
 
 N = 6
 BAUD = 1_000_000
@@ -302,6 +301,7 @@ def lines(result: Dict[str, Any]) -> List[str]:
 
 
 if __name__ == '__main__':
+    own_dds_domain()
     with tempfile.TemporaryDirectory(prefix='dxl-bench-') as tmp:
         measured = teleop_case(pathlib.Path(tmp))
     print('\n'.join(lines(measured)))

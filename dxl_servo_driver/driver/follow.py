@@ -39,7 +39,7 @@ import time
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from dxl_servo_driver.config import DriverConfig, JointConfig
-from dxl_servo_driver.driver.manager import Manager
+from dxl_servo_driver.driver.roles import ManagerForFollower
 from dxl_servo_driver.driver.servo import IDX_POSITION, Result, Throttle
 
 __all__ = ['FOLLOWER', 'Follower', 'LeaderSample', 'gripper_map']
@@ -86,8 +86,8 @@ class _Joint:
 class Follower:
     """The follower's CycleStep; engage/disengage; facts for /diagnostics."""
 
-    def __init__(self, manager: Callable[[], Manager], config: DriverConfig, log: Any,
-                 stamp_now: Callable[[], int] = time.time_ns,
+    def __init__(self, manager: Callable[[], ManagerForFollower], config: DriverConfig,
+                 log: Any, stamp_now: Callable[[], int] = time.time_ns,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self._manager_of = manager
         self._log = log
@@ -224,7 +224,7 @@ class Follower:
         if not result.success:
             self.disengage(f'its goals were refused: {result.message}')
 
-    def _step(self, manager: Manager, sample: LeaderSample,
+    def _step(self, manager: ManagerForFollower, sample: LeaderSample,
               now_s: float) -> Tuple[List[str], List[float]]:
         """Return this cycle's goals: the leader's, mapped, clamped, no step above the limits."""
         config = self.config
@@ -271,7 +271,7 @@ class Follower:
             self._index_of = (names, [where.get(joint.leader) for joint in self._joints])
         return self._index_of[1]
 
-    def _clamped(self, manager: Manager, joint: _Joint, target: float) -> float:
+    def _clamped(self, manager: ManagerForFollower, joint: _Joint, target: float) -> float:
         servo = manager.servos.get(joint.name)
         if servo is None:
             return target
@@ -307,7 +307,8 @@ class Follower:
                 self._blocked(manager, joint, present, error)
                 return
 
-    def _blocked(self, manager: Manager, joint: _Joint, present: float, error: float) -> None:
+    def _blocked(self, manager: ManagerForFollower, joint: _Joint, present: float,
+                 error: float) -> None:
         self.blocked = (joint.name, error)
         why = (f'joint {joint.name!r} is blocked: {error:.3f} rad from its goal for '
                f'{self.config.follow_block_time:g} s (follow.block_error '
@@ -346,7 +347,7 @@ class Follower:
         return facts
 
 
-def _present(manager: Manager, name: str, fresh_only: bool) -> Optional[float]:
+def _present(manager: ManagerForFollower, name: str, fresh_only: bool) -> Optional[float]:
     servo = manager.servos.get(name)
     if servo is None or servo.state is None or (fresh_only and not servo.fresh):
         return None

@@ -36,8 +36,8 @@ import time
 import traceback
 from typing import Any, Callable, List, Optional, Protocol, Sequence, TextIO, Tuple
 
-from dxl_servo_driver.driver.manager import Manager
 from dxl_servo_driver.driver.rates import RateMeter, Shortfall
+from dxl_servo_driver.driver.roles import ManagerForLoop
 from dxl_servo_driver.timerslack import fine_timer_slack
 
 __all__ = ['CycleLoop', 'CycleStep', 'Logger', 'PrintLog', 'Publish', 'RATE_LOG_INTERVAL_S',
@@ -119,8 +119,8 @@ class PrintLog:
 class CycleLoop:
     """Drives the manager's cycle at the loop rate and measures it (the module docstring)."""
 
-    def __init__(self, manager: Callable[[], Manager], loop_rate_hz: float, publish: Publish,
-                 log: Logger, stamp: Callable[[], int] = time.time_ns,
+    def __init__(self, manager: Callable[[], ManagerForLoop], loop_rate_hz: float,
+                 publish: Publish, log: Logger, stamp: Callable[[], int] = time.time_ns,
                  steps: Sequence[CycleStep] = (), timers: Optional[Timers] = None) -> None:
         self._manager_of = manager   # asked at each start: a reconfigure makes a new one
         self._publish = publish
@@ -134,7 +134,7 @@ class CycleLoop:
         self._generation = 0
         self._started: List[threading.Thread] = []   # every cycle thread not known ended
         self._timer: Any = None
-        self._timer_manager: Optional[Manager] = None
+        self._timer_manager: Optional[ManagerForLoop] = None
         self.rate = RateMeter()
         self._shortfall = Shortfall()
         self.period_s = 1.0 / loop_rate_hz
@@ -214,7 +214,7 @@ class CycleLoop:
             self._timer = self._timers.create_timer(self.period_s, self._timer_cycle)
 
     # the thread -----------------------------------------------------------------------------
-    def _run(self, generation: int, manager: Manager) -> None:
+    def _run(self, generation: int, manager: ManagerForLoop) -> None:
         """Run the bus cycle in its thread; if it ever fails for good, say so and keep why."""
         # Its sleeps (until the replies are due, until the next cycle) end on time, not up to
         # 50 us later.
@@ -228,7 +228,7 @@ class CycleLoop:
                 f'the bus cycle stopped: {exc!r}; going to the error state (torque off)\n'
                 + ''.join(traceback.format_exception(exc)))
 
-    def _loop(self, generation: int, manager: Manager) -> None:
+    def _loop(self, generation: int, manager: ManagerForLoop) -> None:
         """
         Read, write goals, step recovery, publish, pace; until stopped.
 
@@ -311,7 +311,7 @@ class CycleLoop:
         self._tick_rate(manager)
 
     # one cycle's parts ----------------------------------------------------------------------
-    def _begin(self, manager: Manager) -> bool:
+    def _begin(self, manager: ManagerForLoop) -> bool:
         """Stamp and start a read; False when nothing is in flight (port lost, no servo)."""
         # Stamped with the lock held, right before the request: a service's transaction may
         # hold the bus for tens of milliseconds first.
@@ -326,7 +326,7 @@ class CycleLoop:
         self._read_stamp = self._stamp_source()
         self._read_began_s = time.monotonic()
 
-    def _end(self, manager: Manager, began_s: float, chain: bool = False) -> bool:
+    def _end(self, manager: ManagerForLoop, began_s: float, chain: bool = False) -> bool:
         # Lost or corrupted replies are read again while the cycle has time (or twice the bus
         # time when the loop runs as fast as the bus allows).
         retry_until = began_s + max(0.9 * self.period_s, 2.0 * self.bus_cycle_s)
@@ -345,14 +345,14 @@ class CycleLoop:
             step.watch_samples(read_ok)
         self._publish(stamp_ns, read_ok)
 
-    def _survive(self, manager: Manager, exc: Exception) -> None:
+    def _survive(self, manager: ManagerForLoop, exc: Exception) -> None:
         """Count a failed cycle, let its read go, say why (throttled)."""
         self.cycle_errors += 1
         manager.abort_read()
         self._log.error(f'cycle failed: {exc!r}', throttle_duration_sec=2.0)
 
     # the rate -------------------------------------------------------------------------------
-    def _tick_rate(self, manager: Manager) -> None:
+    def _tick_rate(self, manager: ManagerForLoop) -> None:
         windows = self.rate.windows
         self.rate.tick()
         if self.rate.windows != windows:
@@ -372,7 +372,7 @@ class CycleLoop:
         if time.monotonic() >= self._next_rate_log_s:
             self._log_rate(manager)
 
-    def _log_rate(self, manager: Manager) -> None:
+    def _log_rate(self, manager: ManagerForLoop) -> None:
         # A first report once the rate has settled, then one a minute.
         first = self._next_rate_log_s == 0.0
         self._next_rate_log_s = time.monotonic() + (3.0 if first else RATE_LOG_INTERVAL_S)

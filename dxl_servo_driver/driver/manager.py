@@ -18,7 +18,7 @@ to cycle_end() or abort_read() (driver/cycle.ReadInFlight).
 """
 
 import time
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Type, TYPE_CHECKING
 
 from dxl_servo_driver.bus import Bus
 from dxl_servo_driver.config import DriverConfig
@@ -41,6 +41,9 @@ from dxl_servo_driver.driver.transports import open_transport, PortFactory, Tran
 from dxl_servo_driver.errors import CommError, Interrupted, PortError, Refused
 from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import RETURN_DELAY_UNIT_S
+
+if TYPE_CHECKING:
+    from dxl_servo_driver.driver.roles import ManagerForFollower, ManagerForLoop
 
 __all__ = [
     'BLOCK', 'IDX_CANARY', 'IDX_EFFORT', 'IDX_HW_ERROR', 'IDX_MOVING', 'IDX_MOVING_STATUS',
@@ -458,3 +461,9 @@ class Manager:
     def write_register(self, name: str, register: str, value: int) -> Result:
         """Write one register; EEPROM while torque is on is refused with the reason."""
         return self._services.write_register(name, register, value)
+
+
+if TYPE_CHECKING:
+    # The manager is what the cycle loop and the follower are given (driver/roles.py).
+    _FOR_LOOP: Type[ManagerForLoop] = Manager
+    _FOR_FOLLOWER: Type[ManagerForFollower] = Manager

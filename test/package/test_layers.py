@@ -207,3 +207,38 @@ def test_no_import_circle() -> None:
     assert _circle(graph) == [], ' -> '.join(_circle(graph))
     # The check finds one where there is one.
     assert _circle({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': set()}) == ['a', 'b', 'c', 'a']
+
+
+# The module at the top of a folder: it builds the folder's parts (driver/: the manager) or is an
+# executable's entry (ros/, tool/); only the layers above import it.
+FOLDER_TOPS = {'driver': 'manager', 'ros': 'main', 'tool': 'main'}
+
+
+def test_no_part_of_a_folder_imports_its_top_or_its_face() -> None:
+    """
+    No module imports the top (FOLDER_TOPS) or the face (FACES: the __init__) of its own folder.
+
+    Such an import runs back up. The circle test sees only an import that comes back to its
+    module, and the layer test lets a folder import itself: a part of driver/ importing the
+    manager (which imports every other part) is neither. Every import counts, in a function or
+    under `if TYPE_CHECKING:` too. A part that calls its top names the calls in a Protocol
+    (driver/roles.py).
+    """
+    def upward(graph: dict, tops: set) -> list:
+        found = []
+        for module, imported in sorted(graph.items()):
+            for top in sorted(imported & tops):
+                folder = top if top.count('.') == 1 else top.rpartition('.')[0]
+                if module.startswith(folder + '.') and module != top:
+                    found.append(f'{module} imports {top}')
+        return found
+
+    tops = ({f'dxl_servo_driver.{folder}' for folder in FACES}
+            | {f'dxl_servo_driver.{folder}.{top}' for folder, top in FOLDER_TOPS.items()})
+    graph = _module_graph()
+    assert set(graph) >= tops
+    assert upward(graph, tops) == []
+    # The check finds one where there is one: a part importing the top, a part importing the face.
+    assert upward({'p.d.top': {'p.d.part'}, 'p.d.part': set(), 'p.d.loop': {'p.d.top'},
+                   'p.f': {'p.f.a'}, 'p.f.a': set(), 'p.f.b': {'p.f', 'p.d.top'}},
+                  {'p.d.top', 'p.f'}) == ['p.d.loop imports p.d.top', 'p.f.b imports p.f']
