@@ -1,10 +1,10 @@
 """
-The bus's top layer: the reads of many servos at once, over the one-off transactions.
+The bus's group reads: the reads of many servos at once, over the port's wire.
 
 Sync read, bulk read and their fast forms (Fast Sync Read, Fast Bulk Read: one status packet for
 all servos, its parts each with a CRC of all before it) are begun and collected apart (SyncRead),
 so a cycle can do other work while the servos answer; the bus stays held in between. Their
-replies go through the wire's collector (wire.Wire._collect) like any transaction's, except the
+replies go through the wire's collector (wire.Wire.collect) like any transaction's, except the
 usual case: a whole clean block, checked and decoded at once (BlockTemplate, the clean parse),
 in the protocol whose layout those know (Framer.clean_block). The cycle's state reads carry
 the servos' Realtime Tick, so the caller dates every sample (driver/clock.py).
@@ -20,10 +20,8 @@ import struct
 import time
 from typing import Any, Callable, cast, Dict, List, Optional, Sequence, Tuple, Union
 
-from dxl_servo_driver.bus.transactions import Transactions
-from dxl_servo_driver.bus.wire import Request
+from dxl_servo_driver.bus.wire import Request, Wire
 from dxl_servo_driver.errors import BadRequest, CommError, CommTimeout, PortError
-from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import (
     ALERT_BIT, BROADCAST_ID, crc16, FAST_HEAD_SIZE, FAST_PART_OVERHEAD, fast_status_head,
     fast_status_size, fast_sync_head, fast_sync_size, Framer, HEADER, Instruction,
@@ -47,7 +45,7 @@ class BlockTemplate:
     byte (the fast status: its head and each part's error and id) are compared with what a clean
     block has in one comparison, the CRCs are the compiled CRC's over every reply, and the
     values of every servo come out as one flat tuple, in the order asked. What the careful path
-    (`Bus._parse_clean`, `parse_fast_status`) takes as a whole clean block with every error
+    (`parse_clean`, `parse_fast_status`) takes as a whole clean block with every error
     byte 0 is exactly what this takes, with the same values; anything else (a missing, late,
     corrupt, stuffed reply, an alert) is left to it.
     """
@@ -151,7 +149,7 @@ class SyncRead:
     places that lock is released.
     """
 
-    _bus: 'GroupReads'
+    _reads: 'GroupReads'
     request: Request
     length: int     # the data each answer carries (a bulk read: the longest)
     address: int    # a bulk read: -1 (each record has its own)
@@ -189,17 +187,7 @@ class SyncRead:
 
     def collect(self) -> SyncResult:
         """Collect the answers and release the bus."""
-        if self.done:
-            raise RuntimeError('a sync read collected or aborted already')
-        self.done = True
-        bus = self._bus
-        try:
-            if bus.framer is self.framer:   # the usual case: no switch on the cycle's path
-                return bus._collect_sync(self)
-            with bus.speaking(self.framer):   # the protocol it went out in
-                return bus._collect_sync(self)
-        finally:
-            bus.lock.release()
+        return self._reads.collect(self)
 
     def abort(self) -> None:
         """
@@ -209,34 +197,22 @@ class SyncRead:
         so no later transaction (the next activation's first read, a torque-off) can take it
         for its own. Later stragglers still find the bus suspicious (dirty).
         """
-        if self.done:
-            return
-        self.done = True
-        bus = self._bus
-        bus.mark_dirty()
-        chunk = self.framer.status_overhead * len(self.ids) + 4096
-        try:
-            while time.monotonic() < self.deadline_s:
-                dropped = bus._read(chunk, self.deadline_s, to_deadline=True)
-                bus.counters.flushed_bytes += len(dropped)
-        except PortError:
-            pass   # a lost port holds nothing to wait for; its next user finds it lost
-        finally:
-            bus.lock.release()
+        self._reads.abort(self)
 
 
-class GroupReads(Transactions):
+class GroupReads:
     """
-    The reads of many servos at once (sync, bulk, fast), over the one-off transactions.
+    The reads of many servos at once (sync, bulk, fast), over the port's wire (held).
 
-    An extension of Transactions rather than a holder of one (see wire.Wire): the answers'
-    reading (_answer, _missing, alert) is the transactions', and a cycle's retries of what a
-    sync read missed are one-off reads on the same object.
+    What the layer above (the bus) may call: sync_read, begin_sync_read, bulk_read and
+    begin_bulk_read; what a SyncRead they return calls: collect and abort (its two ends). The
+    wire is reached through its public names only (wire.Wire), the answers judged by it
+    (Wire.answer, Wire.missing) as the one-off transactions' are; a cycle's retries of what a
+    sync read missed are one-off reads the caller makes on the bus.
     """
 
-    def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
-                 return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
-        super().__init__(port, baud_bps, latency_timer_s, return_delay_s, framer)
+    def __init__(self, wire: Wire) -> None:
+        self._wire = wire
         # Made once per roster and part, not per cycle (each bounded: cleared past 64).
         self._sync_read_requests: Dict[Tuple[int, int, Tuple[int, ...], bool], Request] = {}
         self._status_prefixes: Dict[Tuple[Tuple[int, ...], Tuple[int, ...]], List[bytes]] = {}
@@ -249,10 +225,7 @@ class GroupReads(Transactions):
         key = (address, length, ids, fast)
         request = self._sync_read_requests.get(key)
         if request is None:
-            params = struct.pack('<HH', address, length) + bytes(ids)
-            packet = self.framer.encode(
-                BROADCAST_ID, Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ,
-                params)
+            packet = sync_read_packet(address, length, ids, fast)
             if len(self._sync_read_requests) > 64:
                 self._sync_read_requests.clear()
             request = self._sync_read_requests[key] = Request(packet, ids, length)
@@ -285,28 +258,29 @@ class GroupReads(Transactions):
         usual clean block is checked and decoded whole (BlockTemplate): the result has `values`
         instead of `data`; any other block is collected the careful way, as without.
         """
+        wire = self._wire
         id_tuple = tuple(ids)
         # Only a bus where some id lacks sync read needs the look (not the usual one, every
         # cycle).
-        if self._framers or not self.default_framer.sync_read:
+        if wire.mixed or not wire.default_framer.sync_read:
             for servo_id in id_tuple:
-                framer = self.framer_for(servo_id)
+                framer = wire.framer_for(servo_id)
                 if not framer.sync_read:
                     raise BadRequest(f'{"fast sync read" if fast else "sync read"} does not '
                                      f'exist in Protocol {framer.version}.0 (use bulk_read)')
-        self.lock.acquire()
+        wire.lock.acquire()
         try:
-            if self.framer is PROTOCOL_2:   # the usual bus: no switch on the cycle's path
+            if wire.framer is PROTOCOL_2:   # the usual bus: no switch on the cycle's path
                 request, expected, sent_s, written_s = self._send_sync_read(
                     address, length, id_tuple, fast)
             else:
-                with self.speaking(PROTOCOL_2):
+                with wire.speaking(PROTOCOL_2):
                     request, expected, sent_s, written_s = self._send_sync_read(
                         address, length, id_tuple, fast)
         except BaseException:
-            self.lock.release()
+            wire.lock.release()
             raise
-        deadline = written_s + self.reply_timeout_s(expected, len(id_tuple), len(request.packet))
+        deadline = written_s + wire.reply_timeout_s(expected, len(id_tuple), len(request.packet))
         return SyncRead(self, request, length, address, sent_s, deadline, fast, linger,
                         fields=fields)
 
@@ -315,47 +289,79 @@ class GroupReads(Transactions):
         """Put a sync read on the wire: (request, bytes expected, sent_s, written_s)."""
         request = self._sync_read_request(address, length, ids, fast)
         expected = self._sync_reply_size(length, len(ids), fast)
-        sent_s, written_s = self._send(request.packet)
+        sent_s, written_s = self._wire.send(request.packet)
         return request, expected, sent_s, written_s
 
     def _sync_reply_size(self, length: int, count: int, fast: bool) -> int:
         """Return the bytes the answers to a sync read of length bytes from count servos take."""
         if fast:
             return fast_sync_size(length, count)
-        return (self.framer.status_overhead + length) * count
+        return (self._wire.framer.status_overhead + length) * count
 
     def _reply_size(self, lengths: Sequence[int], fast: bool) -> int:
         """Return the bytes the answers of these data lengths take (fast: in one status)."""
         if fast:
             return fast_status_size(lengths)
-        return self.framer.status_overhead * len(lengths) + sum(lengths)
+        return self._wire.framer.status_overhead * len(lengths) + sum(lengths)
 
     # collection ----------------------------------------------------------------------------
+    def collect(self, pending: SyncRead) -> SyncResult:
+        """Collect a sync or bulk read's answers and release the bus (SyncRead.collect)."""
+        if pending.done:
+            raise RuntimeError('a sync read collected or aborted already')
+        pending.done = True
+        wire = self._wire
+        try:
+            if wire.framer is pending.framer:   # the usual case: no switch on the cycle's path
+                return self._collect_sync(pending)
+            with wire.speaking(pending.framer):   # the protocol it went out in
+                return self._collect_sync(pending)
+        finally:
+            wire.lock.release()
+
+    def abort(self, pending: SyncRead) -> None:
+        """Give a read up (idempotent), wait its answers out, release the bus (SyncRead.abort)."""
+        if pending.done:
+            return
+        pending.done = True
+        wire = self._wire
+        wire.mark_dirty()
+        chunk = pending.framer.status_overhead * len(pending.ids) + 4096
+        try:
+            while time.monotonic() < pending.deadline_s:
+                dropped = wire.read(chunk, pending.deadline_s, to_deadline=True)
+                wire.counters.flushed_bytes += len(dropped)
+        except PortError:
+            pass   # a lost port holds nothing to wait for; its next user finds it lost
+        finally:
+            wire.lock.release()
+
     def _collect_sync(self, pending: SyncRead) -> SyncResult:
-        """Collect a sync or bulk read's answers (SyncRead.collect, its framer in force)."""
+        """Collect a sync or bulk read's answers (its framer in force)."""
+        wire = self._wire
         ids = pending.ids
         lengths = pending.lengths
         expected = self._reply_size(lengths, pending.fast)
-        echo_size = len(pending.packet) if self.echo else 0
-        echoes = self.counters.echoes
+        echo_size = len(pending.packet) if wire.echo else 0
+        echoes = wire.counters.echoes
         entered = time.monotonic()
         # The earliest the whole block can be here: the line carries the request, then each
         # answer after its servo's Return Delay Time (a fast read's after the first's only).
         # An echo comes while the request goes out.
-        due_s = (pending.sent_s + self.byte_time_s(len(pending.packet) + expected)
-                 + (1 if pending.fast else len(ids)) * self.least_return_delay_s)
-        buffer = self._read(echo_size + expected, pending.deadline_s, due_s=due_s)
+        due_s = (pending.sent_s + wire.byte_time_s(len(pending.packet) + expected)
+                 + (1 if pending.fast else len(ids)) * wire.least_return_delay_s)
+        buffer = wire.read(echo_size + expected, pending.deadline_s, due_s=due_s)
         if len(buffer) == echo_size + expected:
             # Whole, but in the last half of the slack while we waited for it: nearly given up
             # on. More slack before a reply comes later still (a collect begun in that half
             # cannot tell when the bytes came, and says nothing).
-            near = pending.deadline_s - 0.5 * self.slack_s
+            near = pending.deadline_s - 0.5 * wire.slack_s
             if entered < near < time.monotonic():
-                self.raise_slack()
+                wire.raise_slack()
         if echo_size and buffer[:echo_size] == pending.packet:
             buffer = buffer[echo_size:]
-            self._echo_seen()
-        clean_block = self.framer.clean_block
+            wire.echo_seen()
+        clean_block = wire.framer.clean_block
         if pending.fields and not pending.linger and clean_block:
             template = self._template(pending)
             values = template.parse(buffer)
@@ -375,9 +381,9 @@ class GroupReads(Transactions):
             # answer, and is refused.
             result = self._collect_sync_frames(pending, bytearray(buffer), pending.what,
                                                pending.bulk)
-        if (echo_size and self.counters.echoes == echoes
+        if (echo_size and wire.counters.echoes == echoes
                 and any(isinstance(data, bytes) for data in result.data.values())):
-            self._echo_missing()
+            wire.echo_missing()
         return result
 
     def _template(self, pending: SyncRead) -> BlockTemplate:
@@ -393,34 +399,15 @@ class GroupReads(Transactions):
 
     def _parse_clean(self, buffer: bytes, ids: Tuple[int, ...],
                      lengths: Tuple[int, ...]) -> Optional[Dict[int, Union[bytes, CommError]]]:
-        """
-        Parse the usual case at once: every reply there, in order, unstuffed, error byte 0.
-
-        Each reply (of its id's length: a bulk read's differ) must start with exactly the bytes
-        a clean Protocol 2.0 status of that id has (header, id, length, 0x55, error 0) and pass
-        its CRC; anything else returns None and the collector takes the whole buffer.
-        """
-        overhead = self.framer.status_overhead
-        if len(buffer) != overhead * len(ids) + sum(lengths):
-            return None
+        """Parse the usual case at once (parse_clean), the status prefixes made once per roster."""
         key = (ids, lengths)
         prefixes = self._status_prefixes.get(key)
         if prefixes is None:
-            prefixes = [HEADER + struct.pack('<BHBB', servo_id, length + 4, Instruction.STATUS, 0)
-                        for servo_id, length in zip(ids, lengths)]
+            prefixes = status_prefixes(ids, lengths)
             if len(self._status_prefixes) > 64:
                 self._status_prefixes.clear()
             self._status_prefixes[key] = prefixes
-        results: Dict[int, Union[bytes, CommError]] = {}
-        start = 0
-        for servo_id, prefix, length in zip(ids, prefixes, lengths):
-            body_end = start + overhead + length - 2
-            crc = buffer[body_end] | buffer[body_end + 1] << 8
-            if buffer[start:start + 9] != prefix or crc16(buffer[start:body_end]) != crc:
-                return None
-            results[servo_id] = buffer[start + 9:body_end]
-            start = body_end + 2
-        return results
+        return parse_clean(buffer, ids, lengths, prefixes)
 
     def _collect_sync_frames(self, pending: SyncRead, buffer: bytearray,
                              what: str = 'sync read',
@@ -433,40 +420,41 @@ class GroupReads(Transactions):
         refused. When anything unusual was seen the block is read to its deadline, so an answer
         that follows a stale reply is not missed.
         """
+        wire = self._wire
         ids = pending.ids
         request = pending.request
-        found = self._collect(request, pending.deadline_s, buffer, pending.linger,
-                              lambda got: not got.anomalies and len(got.answers) == len(ids))
+        found = wire.collect(request, pending.deadline_s, buffer, pending.linger,
+                             lambda got: not got.anomalies and len(got.answers) == len(ids))
         if found.echoed:
-            self._echo_seen()   # a missing echo is judged by the caller, _collect_sync
+            wire.echo_seen()   # a missing echo is judged by the caller, _collect_sync
         if found.anomalies or len(found.answers) < len(ids):
-            self.mark_dirty()   # a missing reply may still come, late
+            wire.mark_dirty()   # a missing reply may still come, late
         results: Dict[int, Union[bytes, CommError]] = {}
         alerts: Dict[int, bool] = {}
         latest = 0   # frame number of the last accepted answer, in request order
         for servo_id in ids:
             answer = found.answers.get(servo_id)
             if answer is None:
-                results[servo_id] = self._missing(
+                results[servo_id] = wire.missing(
                     servo_id, servo_id in found.corrupt,
                     f'corrupted status packet in the {what}', f'no status packet in the {what}')
                 continue
             number, error, data = answer
             if refuse_repeated and servo_id in found.repeated:
-                self.counters.stale += 1
+                wire.counters.stale += 1
                 results[servo_id] = CommTimeout(
                     f'id {servo_id}: more than one reply in the {what} (a late one after the '
                     'answer?)', servo_id)
                 continue
             if number < latest:
-                self.counters.stale += 1
+                wire.counters.stale += 1
                 results[servo_id] = CommTimeout(
                     f'id {servo_id}: its reply came before that of an id asked earlier '
                     '(a late reply of an earlier request?)', servo_id)
                 continue
             latest = number
-            alerts[servo_id] = self.alert(error)
-            results[servo_id] = self._answer(servo_id, error, data, what)
+            alerts[servo_id] = wire.alert(error)
+            results[servo_id] = wire.answer(servo_id, error, data, what)
         return SyncResult(results, False, pending.sent_s, alerts)
 
     def _collect_fast(self, pending: SyncRead, buffer: bytes) -> SyncResult:
@@ -483,6 +471,7 @@ class GroupReads(Transactions):
         first part that differs; only an earlier status of the very same request passes, and
         the Realtime Tick the caller reads refuses it.
         """
+        wire = self._wire
         ids = pending.ids
         lengths = pending.lengths
         size = fast_status_size(lengths)
@@ -498,31 +487,32 @@ class GroupReads(Transactions):
             missing = size - (len(data) - start) if start >= 0 else size
             if final or (not pending.linger and (whole or missing <= 0)):
                 break
-            data += self._read(missing if missing > 0 else size, pending.deadline_s)
+            data += wire.read(missing if missing > 0 else size, pending.deadline_s)
         if start > 0:
             if data.startswith(pending.packet):
-                self._echo_seen()   # learned: the adapter echoes (stripped from now on)
+                wire.echo_seen()   # learned: the adapter echoes (stripped from now on)
             else:
-                self.counters.stale += 1   # something came before the answer
-        self.mark_dirty()   # a missing part may still come, late
+                wire.counters.stale += 1   # something came before the answer
+        wire.mark_dirty()   # a missing part may still come, late
         truncated = start < 0 or len(data) - start < size
         return self._fast_result(pending, parts, False, not truncated)
 
     def _fast_result(self, pending: SyncRead, parts: Dict[int, Tuple[int, bytes]],
                      clean: bool, complete: bool) -> SyncResult:
+        wire = self._wire
         results: Dict[int, Union[bytes, CommError]] = {}
         alerts: Dict[int, bool] = {}
         what = pending.what
         for servo_id in pending.ids:
             part = parts.get(servo_id)
             if part is None:
-                results[servo_id] = self._missing(
+                results[servo_id] = wire.missing(
                     servo_id, complete, f'its part of the {what} did not check',
                     f'no part in the {what}')
                 continue
             error, data = part
             alerts[servo_id] = bool(error & ALERT_BIT)
-            results[servo_id] = self._answer(servo_id, error, data, what)
+            results[servo_id] = wire.answer(servo_id, error, data, what)
         return SyncResult(results, clean, pending.sent_s, alerts)
 
     # bulk reads ----------------------------------------------------------------------------
@@ -538,9 +528,10 @@ class GroupReads(Transactions):
         is none. When the bus is suspicious the replies are read to the deadline and each id's
         last answer wins.
         """
-        with self.speaking(framer):
-            return self.begin_bulk_read(requests, linger=self.dirty,
-                                        framer=self.framer).collect()
+        wire = self._wire
+        with wire.speaking(framer):
+            return self.begin_bulk_read(requests, linger=wire.dirty,
+                                        framer=wire.framer).collect()
 
     def begin_bulk_read(self, requests: Sequence[Tuple[int, int, int]], fast: bool = False,
                         linger: bool = False, framer: Optional[Framer] = None) -> SyncRead:
@@ -554,6 +545,7 @@ class GroupReads(Transactions):
         (None: 2.0, as sync reads; 1.0 has a bulk read but no fast one); every id must speak
         it. BadRequest for an id asked twice, none, or one of the other protocol.
         """
+        wire = self._wire
         framer = PROTOCOL_2 if framer is None else framer
         records = [(int(servo_id), int(address), int(length))
                    for servo_id, address, length in requests]
@@ -565,31 +557,72 @@ class GroupReads(Transactions):
             raise BadRequest(f'fast bulk read does not exist in Protocol {version}.0 '
                              '(use bulk_read)')
         # The framers are one object per protocol (FRAMERS): the same one, the same protocol.
-        others = [servo_id for servo_id in ids if self.framer_for(servo_id) is not framer]
+        others = [servo_id for servo_id in ids if wire.framer_for(servo_id) is not framer]
         if others:
             raise BadRequest(f'ids {others} do not speak Protocol {version}.0: a bulk read '
                              'reaches the servos of one protocol')
         lengths = {servo_id: length for servo_id, _, length in records}
-        self.lock.acquire()
+        wire.lock.acquire()
         try:
-            with self.speaking(framer):
+            with wire.speaking(framer):
                 packet = self._bulk_read_packet(records, fast)
-                request = self._request(packet, ids, max(lengths.values()), lengths)
+                request = wire.request(packet, ids, max(lengths.values()), lengths)
                 expected = self._reply_size([length for _, _, length in records], fast)
-                sent_s, written_s = self._send(packet)
+                sent_s, written_s = wire.send(packet)
         except BaseException:
-            self.lock.release()
+            wire.lock.release()
             raise
-        deadline = written_s + self.reply_timeout_s(expected, len(ids), len(packet))
+        deadline = written_s + wire.reply_timeout_s(expected, len(ids), len(packet))
         return SyncRead(self, request, max(lengths.values()), -1, sent_s, deadline, fast, linger,
                         bulk=True, framer=framer)
 
     def _bulk_read_packet(self, records: List[Tuple[int, int, int]], fast: bool) -> bytes:
         """Return a bulk read's packet in the framer in force (fast: 2.0's only)."""
+        wire = self._wire
         # BULK_READ is the same instruction byte in both protocols; the records' layout is not.
-        return self.framer.encode(
+        return wire.framer.encode(
             BROADCAST_ID, Instruction.FAST_BULK_READ if fast else Instruction.BULK_READ,
-            self.framer.bulk_read_params(records))
+            wire.framer.bulk_read_params(records))
+
+
+def sync_read_packet(address: int, length: int, ids: Sequence[int], fast: bool) -> bytes:
+    """Return a (fast) sync read's packet: Protocol 2.0's, the only one with sync reads."""
+    params = struct.pack('<HH', address, length) + bytes(ids)
+    return PROTOCOL_2.encode(
+        BROADCAST_ID, Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ, params)
+
+
+def status_prefixes(ids: Sequence[int], lengths: Sequence[int]) -> List[bytes]:
+    """Return the bytes each clean Protocol 2.0 status of ids starts with (to its error 0)."""
+    return [HEADER + struct.pack('<BHBB', servo_id, length + 4, Instruction.STATUS, 0)
+            for servo_id, length in zip(ids, lengths)]
+
+
+def parse_clean(buffer: bytes, ids: Tuple[int, ...], lengths: Tuple[int, ...],
+                prefixes: Optional[List[bytes]] = None
+                ) -> Optional[Dict[int, Union[bytes, CommError]]]:
+    """
+    Parse the usual reply block at once: every reply there, in order, unstuffed, error byte 0.
+
+    Each reply (of its id's length: a bulk read's differ) must start with exactly the bytes a
+    clean Protocol 2.0 status of that id has (header, id, length, 0x55, error 0: prefixes, made
+    here when not given) and pass its CRC; anything else returns None and the collector takes
+    the whole buffer (the careful path).
+    """
+    if len(buffer) != STATUS_OVERHEAD * len(ids) + sum(lengths):
+        return None
+    if prefixes is None:
+        prefixes = status_prefixes(ids, lengths)
+    results: Dict[int, Union[bytes, CommError]] = {}
+    start = 0
+    for servo_id, prefix, length in zip(ids, prefixes, lengths):
+        body_end = start + STATUS_OVERHEAD + length - 2
+        crc = buffer[body_end] | buffer[body_end + 1] << 8
+        if buffer[start:start + 9] != prefix or crc16(buffer[start:body_end]) != crc:
+            return None
+        results[servo_id] = buffer[start + 9:body_end]
+        start = body_end + 2
+    return results
 
 
 def _find_fast_status(data: bytearray, head: bytes, ids: Tuple[int, ...],

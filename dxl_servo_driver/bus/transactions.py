@@ -1,5 +1,5 @@
 """
-The bus's middle layer: the one-off transactions of one port, over its wire (wire.py).
+The bus's one-off transactions of one port, over its wire (wire.py).
 
 Each transaction here is one request and its answer, or none (a sync write, a sweep's pings):
 ping, read, write, reboot, CLEAR, factory reset, sync write, the adapter's reply delay, a ping
@@ -7,8 +7,7 @@ sweep and the broadcast ping. Every one with one servo goes out in that servo's 
 (Wire.speak; the _to_servo decorator), and what differs between the protocols (one-byte
 addresses and their reach, a ping's answer without the model number, the instructions 1.0 does
 not have, the error byte's meaning) is the framer's to say (protocol.Framer), never a branch on
-its version here. The wire is reached through _send, _read, _collect, reply_timeout_s and
-mark_dirty (and the state they keep: the lock, the framer in force, the echo, the counters).
+its version here. Transactions holds the port's wire (wire.Wire) and uses its public names only.
 
 A status packet does not say which request it answers: a one-off read is tagged by its length
 (Transactions.read) and, for values that do not change by themselves, confirmed by a second.
@@ -19,13 +18,11 @@ from dataclasses import dataclass, field
 import functools
 import time
 from typing import (
-    Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Set, Tuple, TypeVar, Union)
+    Any, Callable, cast, Dict, Iterable, List, Optional, Sequence, Set, Tuple, TypeVar)
 
-from dxl_servo_driver.bus.wire import ANSWER, CORRUPT, ECHO, port_lost, Request, STRAY, Wire
-from dxl_servo_driver.errors import (
-    BadRequest, CommError, CommTimeout, CorruptReply, StatusError)
+from dxl_servo_driver.bus.wire import ANSWER, CORRUPT, ECHO, Request, STRAY, Wire
+from dxl_servo_driver.errors import BadRequest, CommTimeout, CorruptReply, StatusError
 from dxl_servo_driver.models import Item
-from dxl_servo_driver.port import RawPort
 from dxl_servo_driver.protocol import (
     BITS_PER_BYTE, BROADCAST_ID, CLEAR_MULTI_TURN, Frame, Framer, Instruction, MAX_ID,
     PROTOCOL_2, RETURN_DELAY_UNIT_S, STATUS_OVERHEAD)
@@ -168,54 +165,31 @@ def _suspects(size: int, frames: Sequence[Frame], models: Dict[int, int],
 def _to_servo(method: Method) -> Method:
     """Run a transaction with one servo in that servo's protocol (Wire.speak)."""
     @functools.wraps(method)
-    def speaking(bus: 'Transactions', servo_id: int, *args: Any, **kwargs: Any) -> Any:
-        with bus.speaking(bus.framer_for(servo_id)):
-            return method(bus, servo_id, *args, **kwargs)
+    def speaking(self: 'Transactions', servo_id: int, *args: Any, **kwargs: Any) -> Any:
+        wire = self._wire
+        with wire.speaking(wire.framer_for(servo_id)):
+            return method(self, servo_id, *args, **kwargs)
     return cast(Method, speaking)
 
 
-class Transactions(Wire):
+class Transactions:
     """
-    The one-off transactions of one port, over its wire. Thread-safe: one at a time.
+    The one-off transactions of one port, over its wire (held). Thread-safe: one at a time.
 
-    An extension of Wire rather than a holder of one: see Wire. The group reads extend this in
-    turn (group_reads.GroupReads), for the answers' reading (_answer, _missing) they share.
+    What the layer above (the bus) may call: transact, ping, reply_delay, ping_sweep,
+    broadcast_ping, broadcast_sweep, read, read_fresh, read_dated, write, read_item, write_item,
+    reboot, clear_multi_turn, factory_reset and sync_write. The wire is reached through its
+    public names only (wire.Wire).
     """
 
-    def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
-                 return_delay_s: float = 0.0005, framer: Framer = PROTOCOL_2) -> None:
-        super().__init__(port, baud_bps, latency_timer_s, return_delay_s, framer)
+    def __init__(self, wire: Wire) -> None:
+        self._wire = wire
         self._read_tag = 0
-
-    # answers -------------------------------------------------------------------------------
-    def _missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
-                 silent_text: str) -> CommError:
-        """Count and return why a servo has no answer: corrupt or silent."""
-        if corrupt:
-            self.counters.corrupt += 1
-            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
-        self.counters.timeouts += 1
-        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
-
-    def _answer(self, servo_id: int, error: int, data: bytes,
-                what: str) -> Union[bytes, StatusError]:
-        """Return an answer's data, or the StatusError its error byte says (counted)."""
-        framer = self.framer
-        code = error & framer.refusal_mask
-        if not code:
-            return data
-        self.counters.status_errors += 1
-        return StatusError(f'id {servo_id}: {what} refused: {framer.error_text(code)}',
-                           servo_id, code, bool(error & framer.alert_mask))
-
-    def alert(self, error: int) -> bool:
-        """Return whether a status error byte reports a hardware error (the alert)."""
-        return bool(error & self.framer.alert_mask)
 
     def _refuse_unless(self, exists: bool, what: str, instead: str) -> None:
         """Refuse an instruction the protocol in force does not have (BadRequest)."""
         if not exists:
-            raise BadRequest(f'{what} does not exist in Protocol {self.framer.version}.0 '
+            raise BadRequest(f'{what} does not exist in Protocol {self._wire.framer.version}.0 '
                              f'({instead})')
 
     # one-off transactions ------------------------------------------------------------------
@@ -239,43 +213,44 @@ class Transactions(Wire):
         With probe, silence is an answer too (a servo booting, or not there): a missing reply
         alone does not make the bus suspicious. A late one is still refused by its length.
         """
-        request = self._request(self.framer.encode(servo_id, instruction, params), (servo_id,),
-                                reply_params)
-        with self.lock:
+        wire = self._wire
+        request = wire.request(wire.framer.encode(servo_id, instruction, params), (servo_id,),
+                               reply_params)
+        with wire.lock:
             if linger is None:
-                linger = self.dirty
-            sent_s, written_s = self._send(request.packet)
-            reply_size = self.framer.status_overhead + reply_params
-            deadline = written_s + self.reply_timeout_s(reply_size, 1, len(request.packet))
-            want = reply_size + (len(request.packet) if self.echo else 0)
-            buffer = bytearray(self._read(want, deadline))
-            collected = self._collect(request, deadline, buffer, linger,
-                                      lambda found: servo_id in found.answers)
-            self._note_echo(collected.echoed, servo_id in collected.answers)
+                linger = wire.dirty
+            sent_s, written_s = wire.send(request.packet)
+            reply_size = wire.framer.status_overhead + reply_params
+            deadline = written_s + wire.reply_timeout_s(reply_size, 1, len(request.packet))
+            want = reply_size + (len(request.packet) if wire.echo else 0)
+            buffer = bytearray(wire.read(want, deadline))
+            collected = wire.collect(request, deadline, buffer, linger,
+                                     lambda found: servo_id in found.answers)
+            wire.note_echo(collected.echoed, servo_id in collected.answers)
             if collected.anomalies:
-                self.mark_dirty()
+                wire.mark_dirty()
             answer = collected.answers.get(servo_id)
             if answer is None:
                 if not probe or collected.anomalies:
-                    self.mark_dirty()
+                    wire.mark_dirty()
                 if collected.corrupt:
-                    self.counters.corrupt += 1
+                    wire.counters.corrupt += 1
                     raise CorruptReply(f'id {servo_id}: corrupted status packet for {what}',
                                        servo_id)
-                self.counters.timeouts += 1
+                wire.counters.timeouts += 1
                 if collected.discarded:
                     # Replies came, none its own: the one before came after its deadline and
                     # this one's will too (a slow adapter, a starved host): the slack grows
                     # before the retry, as when late bytes wait at the next flush.
-                    self.raise_slack()
-                version = self.framer.version
+                    wire.raise_slack()
+                version = wire.framer.version
                 hint = (' (only replies that did not answer it came back)' if collected.discarded
                         else f' (check the id, the baud rate, Protocol {version}.0, the servo '
                         'power and the adapter latency timer)')
                 raise CommTimeout(f'id {servo_id}: no status packet for {what} at '
-                                  f'{self.baud_bps} bps{hint}', servo_id)
+                                  f'{wire.baud_bps} bps{hint}', servo_id)
             _, error, data = answer
-            result = self._answer(servo_id, error, data, what)
+            result = wire.answer(servo_id, error, data, what)
             if isinstance(result, StatusError):
                 raise result
             return result, sent_s
@@ -288,7 +263,7 @@ class Transactions(Wire):
         probe: its silence is expected now and then (a booting servo, a scan), so it does not
         make the bus suspicious of the transactions that follow.
         """
-        framer = self.framer
+        framer = self._wire.framer
         data = self._transact(servo_id, Instruction.PING, b'', framer.ping_reply_params, 'ping',
                               None, probe)[0]
         if framer.model_number_address is not None:
@@ -305,23 +280,24 @@ class Transactions(Wire):
         real latency is measured where the OS does not say it (a pty, a non-FTDI adapter). The
         delay holds the servo's Return Delay Time and the host's wake-up too.
         """
-        framer = self.framer
-        request = self._request(framer.encode(servo_id, Instruction.PING), (servo_id,),
-                                framer.ping_reply_params)
+        wire = self._wire
+        framer = wire.framer
+        request = wire.request(framer.encode(servo_id, Instruction.PING), (servo_id,),
+                               framer.ping_reply_params)
         reply_size = framer.status_overhead + framer.ping_reply_params
-        with self.lock:
-            _, written_s = self._send(request.packet)
-            due_s = written_s + self.byte_time_s(len(request.packet) + reply_size)
+        with wire.lock:
+            _, written_s = wire.send(request.packet)
+            due_s = written_s + wire.byte_time_s(len(request.packet) + reply_size)
             deadline = due_s + listen_s
-            want = reply_size + (len(request.packet) if self.echo else 0)
-            buffer = bytearray(self._read(want, deadline, to_deadline=True))
-            collected = self._collect(request, deadline, buffer, False,
-                                      lambda found: servo_id in found.answers)
+            want = reply_size + (len(request.packet) if wire.echo else 0)
+            buffer = bytearray(wire.read(want, deadline, to_deadline=True))
+            collected = wire.collect(request, deadline, buffer, False,
+                                     lambda found: servo_id in found.answers)
             came_s = time.monotonic()
-            self._note_echo(collected.echoed, servo_id in collected.answers)
+            wire.note_echo(collected.echoed, servo_id in collected.answers)
             if servo_id not in collected.answers:
                 if collected.anomalies:
-                    self.mark_dirty()
+                    wire.mark_dirty()
                 return None
             return max(0.0, came_s - due_s)
 
@@ -336,32 +312,28 @@ class Transactions(Wire):
         nobody asked) says answers collided or the line is noisy: the caller sweeps smaller
         groups to find whose (scan._locate).
         """
+        wire = self._wire
         reply_size = framer.status_overhead + framer.ping_reply_params
         requests = {servo_id: Request(framer.encode(servo_id, Instruction.PING), (servo_id,),
                                       framer.ping_reply_params, refusal_mask=framer.refusal_mask)
                     for servo_id in ids}
         longest = max((len(request.packet) for request in requests.values()), default=0)
-        spacing_s = sweep_spacing_s(self.baud_bps, framer)
+        spacing_s = sweep_spacing_s(wire.baud_bps, framer)
         buffer = bytearray()
-        with self.speaking(framer):
-            # The pings go out back to back, not through _send: one flush for all of them.
-            self._flush()
+        with wire.speaking(framer):
+            # The pings go out back to back, not through send: one flush for all of them.
+            wire.flush()
             due_s = time.monotonic()
             for request in requests.values():
                 wait_s = due_s - time.monotonic()
                 if wait_s > 0.0:
                     time.sleep(wait_s)
-                try:
-                    self.port.write(request.packet)
-                    waiting = self.port.in_waiting
-                    if waiting:
-                        buffer += self.port.read(waiting, 0.0)
-                except OSError as exc:
-                    raise port_lost(exc) from None
+                wire.write(request.packet)
+                buffer += wire.read_waiting()
                 due_s = time.monotonic() + spacing_s
-            deadline = due_s + self.latency_timer_s + self.slack_s
-            buffer += self._read(len(requests) * (longest + reply_size), deadline,
-                                 to_deadline=True)
+            deadline = due_s + wire.latency_timer_s + wire.slack_s
+            buffer += wire.read(len(requests) * (longest + reply_size), deadline,
+                                to_deadline=True)
             frames, _ = framer.scan(
                 buffer, 0, max(2 * (framer.ping_reply_params + 4) + 8, longest), True)
         return _heard(frames, requests, _outside(buffer, frames))
@@ -381,33 +353,29 @@ class Transactions(Wire):
         Garbled answers (two servos with one id collide) and noise are counted, not dropped,
         and placed among the clean answers (Sweep.suspects): the caller sweeps those ids.
         """
-        self._refuse_unless(self.framer.broadcast_ping, 'broadcast ping',
+        wire = self._wire
+        self._refuse_unless(wire.framer.broadcast_ping, 'broadcast ping',
                             'ping the ids one by one')
-        framer = self.framer
+        framer = wire.framer
         request = Request(framer.encode(BROADCAST_ID, Instruction.PING),
                           tuple(range(MAX_ID + 1)), PING_REPLY_PARAMS,
                           refusal_mask=framer.refusal_mask)
         max_length = max(2 * (PING_REPLY_PARAMS + 4) + 8, len(request.packet))
         buffer = bytearray()
-        with self.lock:
-            _, written_s = self._send(request.packet)
-            listen_s = self.latency_timer_s + self.slack_s
-            quiet_s = broadcast_quiet_s(self.baud_bps, self.return_delay_s, listen_s)
-            last_s = (written_s + broadcast_ping_s(self.baud_bps) + listen_s)
-            deadline = min(last_s, written_s + self.byte_time_s(len(request.packet)) + quiet_s)
+        with wire.lock:
+            _, written_s = wire.send(request.packet)
+            listen_s = wire.latency_timer_s + wire.slack_s
+            quiet_s = broadcast_quiet_s(wire.baud_bps, wire.return_delay_s, listen_s)
+            last_s = (written_s + broadcast_ping_s(wire.baud_bps) + listen_s)
+            deadline = min(last_s, written_s + wire.byte_time_s(len(request.packet)) + quiet_s)
             pos = 0
             frames: List[Frame] = []
             while True:
-                piece = self._read(1, deadline, to_deadline=True)
+                piece = wire.read(1, deadline, to_deadline=True)
                 if not piece:
                     break
                 buffer += piece
-                try:
-                    waiting = self.port.in_waiting
-                    if waiting:
-                        buffer += self.port.read(waiting, 0.0)
-                except OSError as exc:
-                    raise port_lost(exc) from None
+                buffer += wire.read_waiting()
                 deadline = min(last_s, time.monotonic() + quiet_s)
                 found, pos = framer.scan(buffer, pos, max_length, False)
                 frames += found
@@ -436,8 +404,8 @@ class Transactions(Wire):
             heard.suspects = _suspects(len(buffer), frames, heard.models, request.packet)
             heard.garbled = sorted(set(heard.garbled))
             if heard.garbled or heard.noise:
-                self.mark_dirty()
-            self._note_echo(echoed, bool(heard.models))
+                wire.mark_dirty()
+            wire.note_echo(echoed, bool(heard.models))
         return heard
 
     @_to_servo
@@ -460,8 +428,8 @@ class Transactions(Wire):
             again = self.read_fresh(servo_id, address, length)[0]
             if again == data:
                 return data
-            self.counters.stale += 1
-            self.mark_dirty()
+            self._wire.counters.stale += 1
+            self._wire.mark_dirty()
             data = again
         raise CorruptReply(f'id {servo_id}: read of {length} bytes at {address}: replies '
                            'disagree (late replies on the bus?)', servo_id)
@@ -472,10 +440,11 @@ class Transactions(Wire):
         self._read_tag = (self._read_tag + 1) % READ_TAGS
         # The tag (extra bytes, before of them ahead of the register) stays inside what the
         # protocol reaches (Protocol 1.0: address 255, 253 bytes a read).
-        before, extra = self.framer.fit_read(address, length, min(self._read_tag, address),
+        wire = self._wire
+        before, extra = wire.framer.fit_read(address, length, min(self._read_tag, address),
                                              self._read_tag)
         data, sent_s = self._transact(servo_id, Instruction.READ,
-                                      self._address_length(address - before, length + extra),
+                                      wire.address_length(address - before, length + extra),
                                       length + extra, f'read of {length} bytes at {address}',
                                       None)
         return data[before:before + length], sent_s
@@ -490,13 +459,14 @@ class Transactions(Wire):
         on to the deadline when the bus is suspicious (linger None: then it does, for a sample
         that carries no tick).
         """
-        return self._transact(servo_id, Instruction.READ, self._address_length(address, length),
-                              length, f'read of {length} bytes at {address}', linger)
+        return self._transact(servo_id, Instruction.READ,
+                              self._wire.address_length(address, length), length,
+                              f'read of {length} bytes at {address}', linger)
 
     @_to_servo
     def write(self, servo_id: int, address: int, data: bytes) -> None:
         """Write bytes to the servo's control table at address, and check the status."""
-        params = self.framer.address_param(address, len(data), 1) + bytes(data)
+        params = self._wire.framer.address_param(address, len(data), 1) + bytes(data)
         self.transact(servo_id, Instruction.WRITE, params, 0,
                       f'write of {len(data)} bytes at {address}')
 
@@ -518,15 +488,15 @@ class Transactions(Wire):
     @_to_servo
     def clear_multi_turn(self, servo_id: int) -> None:
         """Send CLEAR: present position back within one turn (the servo must be still)."""
-        self._refuse_unless(self.framer.multi_turn_clear, 'CLEAR', 'no multi-turn clear')
+        self._refuse_unless(self._wire.framer.multi_turn_clear, 'CLEAR', 'no multi-turn clear')
         self.transact(servo_id, Instruction.CLEAR, CLEAR_MULTI_TURN, 0, 'clear multi-turn')
 
     @_to_servo
     def factory_reset(self, servo_id: int, option: int) -> None:
         """Send FACTORY_RESET with option 0xFF, 0x01 or 0x02 (1.0: RESET, 0xFF only)."""
-        params = self.framer.reset_params(option)
+        params = self._wire.framer.reset_params(option)
         if params is None:
-            raise BadRequest(f'Protocol {self.framer.version}.0 RESET has no option '
+            raise BadRequest(f'Protocol {self._wire.framer.version}.0 RESET has no option '
                              f'{option:#04x}: it resets everything (option 0xFF)', servo_id)
         # FACTORY_RESET is 1.0's RESET (0x06).
         self.transact(servo_id, Instruction.FACTORY_RESET, params, 0, 'factory reset')
@@ -535,31 +505,29 @@ class Transactions(Wire):
     def sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]],
                    framer: Optional[Framer] = None) -> int:
         """Write length bytes at address on several servos with one SYNC_WRITE; return bytes."""
-        with self.speaking(framer):
+        with self._wire.speaking(framer):
             return self._sync_write(address, length, data)
 
     def _sync_write(self, address: int, length: int, data: Iterable[Tuple[int, bytes]]) -> int:
-        params = bytearray(self._address_length(address, length))
+        wire = self._wire
+        params = bytearray(wire.address_length(address, length))
         for servo_id, value in data:
             if len(value) != length:
                 raise ValueError(f'sync write of {length} bytes: id {servo_id} has {len(value)}')
             params.append(servo_id)
             params += value
-        packet = self.framer.encode(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
-        with self.lock:
-            if self.echo:
+        packet = wire.framer.encode(BROADCAST_ID, Instruction.SYNC_WRITE, bytes(params))
+        with wire.lock:
+            if wire.echo:
                 # A sync write has no reply, but an echoing adapter sends it back: take it now
                 # rather than let the next request flush it as an anomaly.
-                self._send(packet)
-                echo = self._read(len(packet), time.monotonic() + self.reply_timeout_s(
+                wire.send(packet)
+                echo = wire.read(len(packet), time.monotonic() + wire.reply_timeout_s(
                     0, 0, len(packet)))
                 if echo == packet:
-                    self._echo_seen()
+                    wire.echo_seen()
                 else:
-                    self._echo_missing()   # what came of it, if anything, the next flush drops
+                    wire.echo_missing()   # what came of it, if anything, the next flush drops
             else:
-                try:
-                    self.port.write(packet)
-                except OSError as exc:
-                    raise port_lost(exc) from None
+                wire.write(packet)
         return len(packet)

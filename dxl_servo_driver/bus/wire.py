@@ -3,9 +3,10 @@ The bus's bottom layer: one port's wire, the state every transaction on it share
 
 It owns the state every transaction of the port shares: the lock (one transaction at a time),
 the framer in force, the flush, the deadlines and their adaptive slack, the local echo, the
-learned turnaround, the dirty flag, the counters, and the one frame classifier (Request) and
-collector (Wire._collect) every transaction reads its replies with. The layers above reach it
-through _send, _read, _collect, reply_timeout_s and mark_dirty, and the state they read.
+learned turnaround, the dirty flag, the counters, the one frame classifier (Request) and
+collector (Wire.collect) every transaction reads its replies with, and the judgement of an answer
+(Wire.answer, Wire.missing). The layers above (transactions.Transactions, group_reads.GroupReads)
+each hold the wire and reach it through its public names only (the Wire docstring lists them).
 
 Every transaction follows one rule: a reply is accepted only when it answers the request just
 sent. Before a request goes out, whatever is waiting on the port (a late reply of an earlier
@@ -39,9 +40,9 @@ import contextlib
 from dataclasses import dataclass, field
 import threading
 import time
-from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple
+from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple, Union
 
-from dxl_servo_driver.errors import PortError
+from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.port import port_paced, port_waited, RawPort
 from dxl_servo_driver.protocol import BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, PROTOCOL_2
 from dxl_servo_driver.protocol.protocol1 import PROTOCOL_1
@@ -170,10 +171,23 @@ class Wire:
     not told otherwise); speak() says an id answers in the other. The framer in force
     (`framer`) is switched only under the lock, for one transaction.
 
-    The layers above extend this class (transactions.Transactions, group_reads.GroupReads,
-    bus.Bus) rather than hold one: the state is one per port, every layer's transactions take
-    the same lock and counters, and the callers (and tests) that set the bus's attributes or
-    replace its methods keep finding them on the one object.
+    The layers above (transactions.Transactions, group_reads.GroupReads) each hold the one wire
+    of their port, so every transaction takes the same lock and counters. What they may use:
+
+    - state: `port` (read), `lock` (held for a transaction), `framer` (the one in force) and
+      `default_framer`, `counters`, `echo`, `dirty`, `baud_bps`, `latency_timer_s`,
+      `return_delay_s`, `least_return_delay_s`, `slack_s`, `turnaround_s`; `mixed`.
+    - protocols: speak, framer_for, speaking.
+    - timing: byte_time_s, reply_timeout_s, raise_slack, mark_dirty.
+    - a request: request (its Request), address_length, flush, send (flush and write), write
+      (no flush: a packet that follows one sent), read, read_waiting, collect (the replies read
+      and classified).
+    - the echo: echo_seen, echo_missing, note_echo.
+    - an answer: answer (its data or the StatusError), missing (why there is none), alert.
+    - the port: set_baud, trace_to, attach, close.
+
+    Everything else (the slack's decay, the turnaround's learning, the echo's misses, the dirty
+    deadline, the packets sent lately) is the wire's own.
     """
 
     def __init__(self, port: RawPort, baud_bps: int, latency_timer_s: float = 0.016,
@@ -182,7 +196,7 @@ class Wire:
         # The trace hook (trace_to): with a trace, the port is a TracedPort around the device;
         # without, the device itself, so an untraced bus pays nothing for it.
         self.trace: Optional[BusTrace] = None
-        # A real device: its bytes come no faster than the wire carries them (Wire._read).
+        # A real device: its bytes come no faster than the wire carries them (Wire.read).
         self._paced = port_paced(port)
         self.baud_bps = baud_bps
         self.latency_timer_s = latency_timer_s
@@ -191,7 +205,7 @@ class Wire:
         self.return_delay_s = return_delay_s
         self.least_return_delay_s = 0.0
         # How long after its wire time a sync read's block is whole on this port: the device's
-        # or simulator's turnaround, an adapter's latency timer (learned by Wire._read).
+        # or simulator's turnaround, an adapter's latency timer (learned by Wire.read).
         self.turnaround_s = 0.0
         self.framer = framer
         self.default_framer = framer
@@ -214,6 +228,11 @@ class Wire:
                 self._framers.pop(servo_id, None)
             else:
                 self._framers[servo_id] = framer
+
+    @property
+    def mixed(self) -> bool:
+        """Return True when some id speaks a protocol other than the default (speak)."""
+        return bool(self._framers)
 
     def framer_for(self, servo_id: int) -> Framer:
         """Return the framer of the protocol servo_id speaks."""
@@ -292,8 +311,8 @@ class Wire:
                     self.trace.close()
 
     # the port ------------------------------------------------------------------------------
-    def _flush(self) -> None:
-        # Bytes waiting before a request are late replies or noise: never an answer to it.
+    def flush(self) -> None:
+        """Drop what waits on the port: before a request, late replies or noise (counted)."""
         port = self.port
         waiting = port.in_waiting
         if waiting:
@@ -310,10 +329,10 @@ class Wire:
                 self._easy_requests = 0
         self._gave_up = False
 
-    def _send(self, packet: bytes) -> Tuple[float, float]:
+    def send(self, packet: bytes) -> Tuple[float, float]:
         """Flush, write; return (time before the write, time after it)."""
         try:
-            self._flush()
+            self.flush()
             # A servo may sample its state as soon as the request reaches it, which can be
             # before write() returns (the in-process simulator answers inside it): a reply
             # cannot be older than this.
@@ -325,8 +344,23 @@ class Wire:
             self._recent.append(packet)
         return before, time.monotonic()
 
-    def _request(self, packet: bytes, ids: Tuple[int, ...], reply_params: int,
-                 lengths: Optional[Dict[int, int]] = None) -> Request:
+    def write(self, packet: bytes) -> None:
+        """Write a packet with no flush (one of several back to back, or one with no reply)."""
+        try:
+            self.port.write(packet)
+        except OSError as exc:
+            raise port_lost(exc) from None
+
+    def read_waiting(self) -> bytes:
+        """Return what waits on the port now, without waiting for more."""
+        try:
+            waiting = self.port.in_waiting
+            return self.port.read(waiting, 0.0) if waiting else b''
+        except OSError as exc:
+            raise port_lost(exc) from None
+
+    def request(self, packet: bytes, ids: Tuple[int, ...], reply_params: int,
+                lengths: Optional[Dict[int, int]] = None) -> Request:
         """Return the Request a packet about to be sent is matched by."""
         framer = self.framer
         if framer.echo_like_status:
@@ -334,12 +368,12 @@ class Wire:
                            framer.refusal_mask)
         return Request(packet, ids, reply_params, lengths, refusal_mask=framer.refusal_mask)
 
-    def _address_length(self, address: int, length: int) -> bytes:
+    def address_length(self, address: int, length: int) -> bytes:
         """Return an instruction's address and length parameters in the protocol in force."""
         return self.framer.address_length(address, length)
 
-    def _read(self, size: int, deadline_s: float, to_deadline: bool = False,
-              due_s: float = 0.0) -> bytes:
+    def read(self, size: int, deadline_s: float, to_deadline: bool = False,
+             due_s: float = 0.0) -> bytes:
         """
         Read up to size bytes by deadline_s; to_deadline: waiting it out is the point.
 
@@ -378,7 +412,7 @@ class Wire:
         be waited for, down by the rest of one when it was there, so that share of reads finds
         it there. Held below the latency timer and a quarter of the deadline's least slack:
         a sleep never ends where a block taken is judged nearly given up on (the last half of
-        the slack, GroupReads._collect_sync). A read that did not get its block (a silent
+        the slack, GroupReads.collect). A read that did not get its block (a silent
         servo) says nothing.
         """
         step = TURNAROUND_STEP_S + 0.05 * self.turnaround_s
@@ -389,13 +423,13 @@ class Wire:
             self.turnaround_s = max(0.0, self.turnaround_s - (1.0 - TURNAROUND_ON_TIME) * step)
 
     # the echo ------------------------------------------------------------------------------
-    def _echo_seen(self) -> None:
+    def echo_seen(self) -> None:
         """Our own request came back: the adapter echoes (expected in front of every answer)."""
         self.echo = True
         self._echo_misses = 0
         self.counters.echoes += 1
 
-    def _echo_missing(self) -> None:
+    def echo_missing(self) -> None:
         """Note an answered transaction that came without the echo it was expected to carry."""
         if self.echo:
             self._echo_misses += 1
@@ -403,15 +437,16 @@ class Wire:
                 self.echo = False
                 self._echo_misses = 0
 
-    def _note_echo(self, echoed: bool, answered: bool) -> None:
+    def note_echo(self, echoed: bool, answered: bool) -> None:
+        """Note a transaction's echo: seen, or missing from one that was answered."""
         if echoed:
-            self._echo_seen()
+            self.echo_seen()
         elif answered:
-            self._echo_missing()
+            self.echo_missing()
 
     # the collector -------------------------------------------------------------------------
-    def _collect(self, request: Request, deadline_s: float, buffer: bytearray,
-                 linger: bool, done: Callable[[Collected], bool]) -> Collected:
+    def collect(self, request: Request, deadline_s: float, buffer: bytearray,
+                linger: bool, done: Callable[[Collected], bool]) -> Collected:
         """
         Read and classify the replies of a request until done() or its deadline.
 
@@ -452,14 +487,39 @@ class Wire:
             if final or (not linger and done(collected)):
                 break
             if linger:
-                buffer += self._read(reply_size, deadline_s, to_deadline=True)
+                buffer += self.read(reply_size, deadline_s, to_deadline=True)
             else:
                 # What the missing answers still lack (the bytes from pos on start one).
                 missing = request.reply_bytes(self.framer.status_overhead, collected.answers)
-                buffer += self._read(max(1, missing - (len(buffer) - pos)), deadline_s)
+                buffer += self.read(max(1, missing - (len(buffer) - pos)), deadline_s)
         collected.leftover = pos < len(buffer)
         self.counters.stale += collected.discarded
         return collected
+
+    # answers -------------------------------------------------------------------------------
+    def answer(self, servo_id: int, error: int, data: bytes,
+               what: str) -> Union[bytes, StatusError]:
+        """Return an answer's data, or the StatusError its error byte says (counted)."""
+        framer = self.framer
+        code = error & framer.refusal_mask
+        if not code:
+            return data
+        self.counters.status_errors += 1
+        return StatusError(f'id {servo_id}: {what} refused: {framer.error_text(code)}',
+                           servo_id, code, bool(error & framer.alert_mask))
+
+    def missing(self, servo_id: int, corrupt: bool, corrupt_text: str,
+                silent_text: str) -> CommError:
+        """Count and return why a servo has no answer: corrupt or silent."""
+        if corrupt:
+            self.counters.corrupt += 1
+            return CorruptReply(f'id {servo_id}: {corrupt_text}', servo_id)
+        self.counters.timeouts += 1
+        return CommTimeout(f'id {servo_id}: {silent_text}', servo_id)
+
+    def alert(self, error: int) -> bool:
+        """Return whether a status error byte reports a hardware error (the alert)."""
+        return bool(error & self.framer.alert_mask)
 
 
 def port_lost(exc: BaseException) -> PortError:

@@ -13,11 +13,11 @@ import struct
 from typing import Dict, Iterator, List, Optional, Tuple
 
 from dxl_servo_driver.bus import Bus
-from dxl_servo_driver.bus.group_reads import BlockTemplate
+from dxl_servo_driver.bus.group_reads import BlockTemplate, parse_clean, sync_read_packet
 from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.models import model_for
 from dxl_servo_driver.protocol import (
-    fast_sync_size, Instruction, parse_fast_status, PROTOCOL_2, STATUS_OVERHEAD)
+    fast_sync_size, Instruction, parse_fast_status, STATUS_OVERHEAD)
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.faulty_port import FaultyPort
 from dxl_servo_driver.sim.port import SimPortHandler
@@ -89,10 +89,7 @@ def careful(buffer: bytes, fast: bool) -> Optional[List[Tuple[int, ...]]]:
         if not whole or any(error for error, _ in parts.values()):
             return None
         return [BLOCK.decode_tagged(parts[servo_id][1]) for servo_id in IDS]
-    bus = Bus.__new__(Bus)   # _parse_clean reads the framer and its prefix cache only
-    bus.framer = PROTOCOL_2
-    bus._status_prefixes = {}
-    results = bus._parse_clean(buffer, IDS, (LENGTH,) * len(IDS))
+    results = parse_clean(buffer, IDS, (LENGTH,) * len(IDS))
     if results is None:
         return None
     return [BLOCK.decode_tagged(results[servo_id]) for servo_id in IDS]
@@ -157,7 +154,7 @@ def clean_block(fast: bool) -> bytes:
     bus = Bus(port, BAUD, latency_timer_s=0.0, return_delay_s=0.0)
     for servo_id in IDS:
         bus.write(servo_id, BLOCK.indirect_map_address(), BLOCK.indirect_map_bytes())
-    packet = bus._sync_read_request(BLOCK.read_address, LENGTH, IDS, fast).packet
+    packet = sync_read_packet(BLOCK.read_address, LENGTH, IDS, fast)
     port.write(packet)
     return port.read(4096, 0.0)
 
