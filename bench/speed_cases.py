@@ -144,7 +144,7 @@ def protocol1_case(workdir: pathlib.Path, n: int = 12, baud: int = 1_000_000,
 
 
 def scale(workdir: pathlib.Path, failures: List[str]) -> Dict[str, Any]:
-    """Run the scale cases of the speed issue: N = 50, two buses at once, a 1 ms adapter."""
+    """Run the scale cases: N = 50, two buses at once, a 1 ms adapter."""
     print('bench: scale: N=50 at 4000000 bps ...', file=sys.stderr, flush=True)
     n50 = run_case_retried(50, 4_000_000, workdir, failures)
     print('bench: scale: two buses of 12 at 4000000 bps ...', file=sys.stderr, flush=True)
@@ -318,7 +318,7 @@ def crc_comparison(n: int = 12, rounds: int = 5, cycles: int = 2000) -> Dict[str
 
 
 def speed_cases(workdir: pathlib.Path, failures: List[str]) -> Dict[str, Any]:
-    """Run the speed issue's cases: the ceiling, `top`, a 1 ms adapter, the in-process cycle."""
+    """Run the speed cases: the ceiling, `top`, a 1 ms adapter, the in-process cycle."""
     extra: Dict[str, Any] = {}
     cases = [
         ('ceiling', 'the node on recorded replies, N = 12, 24, 50',

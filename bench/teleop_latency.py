@@ -53,8 +53,8 @@ NODE = 'dxl_servo_driver'
 def _params(path: pathlib.Path, link: str, leader: bool) -> pathlib.Path:
     lines = ['/**:', '  ros__parameters:', f'    port: {link}', f'    baud_rate: {BAUD}',
              '    latency_timer: 0.0', f'    loop_rate: {RATES_HZ[0]}',
-             # Set-up reads tried again over a host's hiccup (two simulators stalled at
-             # once failed a leader's activation inside make bench), as the tests do.
+             # Set-up reads tried again over a host's hiccup (two simulators may stall at
+             # once on a busy machine), as the tests do.
              '    ping_retries: 10',
              f'    joints: [{", ".join(f"j{i}" for i in range(1, N + 1))}]']
     if leader:

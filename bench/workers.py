@@ -137,7 +137,7 @@ class Goals:
     def __init__(self, manager: Any, joints: List[str]) -> None:
         self._manager = manager
         self._joints = joints
-        self._centre = [0.0] * len(joints)   # 0 rad: raw 2048, the old loop's goal
+        self._centre = [0.0] * len(joints)   # 0 rad: raw 2048, the centre of a turn
 
     def idle(self) -> bool:
         """Never idle: the cycle writes every time, so no read is chained."""
@@ -158,8 +158,8 @@ def bus_loop(n: int, baud: int, port_name: str, seconds: float,
 
     The loop the node runs (its thread, flat out, pipelined, every sample dated by its Realtime
     Tick, the usual clean block decoded whole, a late reply answered with more deadline slack),
-    given a goal position for every servo every cycle; fast: Fast Sync Read. As the old bus
-    loop: the tagged part of the block only (no health reads after the first) and no retries,
+    given a goal position for every servo every cycle; fast: Fast Sync Read. Unlike the
+    node: the tagged part of the block only (no health reads after the first) and no retries,
     so a cycle with a sample missing fails.
     """
     sys.path.insert(0, '.')

@@ -60,9 +60,9 @@ NO_SERVO_HINT = (
 # adapter's latency timer (the whole reply timeout per id would make a sweep of 253 ids last
 # 13 s per baud).
 SWEEP_SLACK_MS = 3.0
-# What a step costs beyond its wire time and waits: switching the baud, the host's wake-ups
-# (measured on virtual_bus: a few milliseconds a baud); and each ping of a sweep, the host
-# waking up late for it and writing it (0.1-0.3 ms each on an idle 2-core machine).
+# What a step costs beyond its wire time and waits: switching the baud and the host's wake-ups;
+# and each ping of a sweep, the host waking up late for it and writing it. Estimates only: the
+# plan's time said before a scan starts.
 STEP_OVERHEAD_S = 0.004
 SWEEP_PING_OVERHEAD_S = 0.0002
 

@@ -66,9 +66,8 @@ SLACK_DECAY_REQUESTS = 5000
 MIN_SLEEP_S = 100e-6
 # The turnaround a sync read's whole block comes after its wire time (Bus.turnaround_s) is
 # learned so that this share of reads finds every byte there when its sleep ends; the rest wait
-# on in poll(). The median: a later one makes every cycle sleep past its block by more (behind
-# a 1 ms adapter on the benchmark's machine, 0.8 ran at 0.92 of the rate the wire and latency
-# allow, 0.5 at 0.93). A step moves it by TURNAROUND_STEP_S and a twentieth of itself.
+# on in poll(). The median: a later quantile makes every cycle sleep past its block by more,
+# which costs rate behind a slow adapter. A step moves it by TURNAROUND_STEP_S and a twentieth of itself.
 TURNAROUND_ON_TIME = 0.5
 TURNAROUND_STEP_S = 10e-6
 # How long the bus stays suspicious after an anomaly: late replies of a frozen adapter arrive
@@ -380,8 +379,7 @@ class Wire:
         due_s: the earliest they can all be there. On a port whose bytes come at wire speed
         (`paced`) the read sleeps until then plus the learned turnaround (_learn_turnaround): a
         tty wakes a poller at every piece that comes (each servo's status packet, each USB
-        transfer), and each wake-up costs more CPU than the read itself (40-70 us of a core on
-        the benchmark's machine).
+        transfer), and each wake-up costs more CPU than the read itself.
         """
         size = max(1, size)
         learn = self._paced and due_s > 0.0
