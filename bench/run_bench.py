@@ -56,7 +56,7 @@ def per_added_servo_us(rows: List[Dict[str, Any]], first: int, last: int,
 
 
 def targets(rows: List[Dict[str, Any]], extra: Dict[str, Any]) -> List[str]:
-    """Check one run's figures against the targets (docs/performance.md)."""
+    """Check one run's figures against the targets docs/performance.md sets."""
     at = {row['variant']: row for row in rows if row['n'] == 12 and row['baud'] == 4_000_000}
     if not {'node', 'sdk_baseline'} <= set(at):
         return ['N = 12 at 4 Mbps was not measured']

@@ -67,7 +67,8 @@ MIN_SLEEP_S = 100e-6
 # The turnaround a sync read's whole block comes after its wire time (Bus.turnaround_s) is
 # learned so that this share of reads finds every byte there when its sleep ends; the rest wait
 # on in poll(). The median: a later quantile makes every cycle sleep past its block by more,
-# which costs rate behind a slow adapter. A step moves it by TURNAROUND_STEP_S and a twentieth of itself.
+# which costs rate behind a slow adapter. A step moves it by TURNAROUND_STEP_S and a twentieth
+# of itself.
 TURNAROUND_ON_TIME = 0.5
 TURNAROUND_STEP_S = 10e-6
 # How long the bus stays suspicious after an anomaly: late replies of a frozen adapter arrive
