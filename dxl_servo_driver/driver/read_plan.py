@@ -12,7 +12,7 @@ auto's judgement of the fast reads. No transaction here: driver/cycle.Cycle read
 
 from typing import Dict, FrozenSet, List, Optional, Tuple
 
-from dxl_servo_driver.bus import READ_TAGS, SyncResult
+from dxl_servo_driver.bus import FRAMERS, READ_TAGS, SyncResult
 from dxl_servo_driver.driver import state_block
 from dxl_servo_driver.driver.context import Context
 from dxl_servo_driver.driver.servo import BLOCK, Servo, Throttle
@@ -65,10 +65,13 @@ class ReadPlan:
             if not servo.block.direct and servo.block.has_tick
             and servo.block.tagged_struct.format == TAGGED.format)
         groups: Dict[Tuple[int, int], Tuple[state_block.StateBlock, List[int]]] = {}
-        self.group_1 = [servo for servo, _ in self.ids if servo.joint.protocol == 1.0]
+        # Servos whose protocol has no sync read (1.0) are read apart: by bulk read, or alone.
+        synced = {servo.servo_id for servo, _ in self.ids
+                  if FRAMERS[servo.joint.protocol].sync_read}
+        self.group_1 = [servo for servo, servo_id in self.ids if servo_id not in synced]
         self.bulk_1 = all(servo.model.bulk_read for servo in self.group_1)
         for servo, servo_id in self.ids:
-            if servo.joint.protocol == 1.0:
+            if servo_id not in synced:
                 continue
             block = servo.block
             groups.setdefault((block.read_address, block.size), (block, []))[1].append(servo_id)
@@ -85,7 +88,7 @@ class ReadPlan:
         self.fast = bool(self.groups) and (mode == 'fast_sync' or (
             mode == 'auto' and not self.fast_given_up
             and all(servo.model.has_fast_sync_read(servo.firmware_version)
-                    for servo, _ in self.ids if servo.joint.protocol != 1.0)))
+                    for servo, servo_id in self.ids if servo_id in synced)))
 
     def wire_plan(self) -> List[state_block.Transaction]:
         """
