@@ -44,11 +44,9 @@ from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple, Union
 
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.port import port_paced, port_waited, RawPort
-from dxl_servo_driver.protocol import BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, PROTOCOL_2
-from dxl_servo_driver.protocol.protocol1 import PROTOCOL_1
+from dxl_servo_driver.protocol import (
+    BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, FRAMERS, PROTOCOL_2)
 
-# The framer of each protocol version, as configurations name them.
-FRAMERS: Dict[float, Framer] = {1.0: PROTOCOL_1, 2.0: PROTOCOL_2}
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter. It starts at
 # DEADLINE_SLACK_S and doubles, up to MAX_DEADLINE_SLACK_S, whenever a reply shows it came after
 # its deadline, late rather than lost (a busy machine, an adapter's jitter): the bytes a read gave

@@ -14,7 +14,9 @@ from dxl_servo_driver.config.checks import check_spec, check_type, ConfigError
 from dxl_servo_driver.config.driver_config import JointConfig
 from dxl_servo_driver.config.model_fit import check_registers
 from dxl_servo_driver.config.params import JOINT_PARAMS_BY_NAME
+from dxl_servo_driver.errors import BadRequest
 from dxl_servo_driver.models import xm430
+from dxl_servo_driver.protocol import FRAMERS
 
 
 def _joint_value(params: Mapping[str, Any], name: str, key: str) -> Any:
@@ -193,13 +195,19 @@ def with_protocol(joint: JointConfig, params: Mapping[str, Any],
             and not model.has('protocol_version'):
         raise ConfigError(key if given is not None else 'protocol',
                           f'{model.name} speaks Protocol 2.0 only (joint {joint.name!r})')
-    if protocol == 1.0:
-        for register, _ in joint.registers:
-            table = model or models.model_for(xm430.MODEL_NUMBER)
-            if table.has(register) and table.item(register).address > 0xFF:
-                raise ConfigError(f'{joint.name}.registers.{register}',
-                                  f'address {table.item(register).address} is beyond the '
-                                  'reach of Protocol 1.0 (one-byte addresses)')
+    # A register the protocol's packets cannot address (1.0's one-byte addresses) is refused now.
+    framer = FRAMERS[protocol]
+    table = model or models.model_for(xm430.MODEL_NUMBER)
+    for register, _ in joint.registers:
+        if not table.has(register):
+            continue
+        item = table.item(register)
+        try:
+            framer.address_param(item.address, item.size)
+        except BadRequest:
+            raise ConfigError(f'{joint.name}.registers.{register}',
+                              f'address {item.address} is beyond the reach of Protocol '
+                              f'{protocol} (one-byte addresses)') from None
     return dataclasses.replace(joint, protocol=protocol)
 
 
