@@ -29,9 +29,9 @@ from dxl_servo_driver.bus.discovery import (
 from dxl_servo_driver.bus.group_reads import GroupReads, SyncRead, SyncResult
 from dxl_servo_driver.bus.transactions import READ_TAGS, Transactions
 from dxl_servo_driver.bus.wire import (
-    BusTrace, DEADLINE_SLACK_S, FRAMERS, MAX_DEADLINE_SLACK_S, Wire)
+    BusTrace, DEADLINE_SLACK_S, MAX_DEADLINE_SLACK_S, Wire)
 from dxl_servo_driver.port import RawPort
-from dxl_servo_driver.protocol import Framer, PROTOCOL_2
+from dxl_servo_driver.protocol import Framer, FRAMERS, PROTOCOL_2
 
 __all__ = [
     'Bus', 'BusTrace', 'DEADLINE_SLACK_S', 'FRAMERS', 'MAX_DEADLINE_SLACK_S', 'READ_TAGS',

@@ -29,12 +29,12 @@ from typing import (
 
 from dxl_servo_driver import models
 from dxl_servo_driver.bus.transactions import broadcast_quiet_s, Sweep, sweep_spacing_s
-from dxl_servo_driver.bus.wire import DEADLINE_SLACK_S, FRAMERS
+from dxl_servo_driver.bus.wire import DEADLINE_SLACK_S
 from dxl_servo_driver.errors import CommError, CorruptReply, PortError
 from dxl_servo_driver.models import modes, xm430
 from dxl_servo_driver.models.base import TORQUE_MODE
 from dxl_servo_driver.protocol import (
-    BROADCAST_ID, Framer, Instruction, MAX_ID, RETURN_DELAY_UNIT_S)
+    BROADCAST_ID, Framer, FRAMERS, Instruction, MAX_ID, RETURN_DELAY_UNIT_S)
 
 # Most common first: 57600 is the factory default, 1 Mbps what most robot arms are set to; 9600
 # last, as its Protocol 1.0 sweep takes longest (3.6 s: 12 bytes an id on the wire).

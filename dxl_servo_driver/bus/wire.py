@@ -45,7 +45,7 @@ from typing import Callable, Deque, Dict, Iterator, Optional, Set, Tuple, Union
 from dxl_servo_driver.errors import CommError, CommTimeout, CorruptReply, PortError, StatusError
 from dxl_servo_driver.port import port_paced, port_waited, RawPort
 from dxl_servo_driver.protocol import (
-    BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, FRAMERS, PROTOCOL_2)
+    BITS_PER_BYTE, ERROR_CODE_MASK, Frame, Framer, PROTOCOL_2)
 
 # Slack added to every computed deadline: OS scheduling and USB transfer jitter. It starts at
 # DEADLINE_SLACK_S and doubles, up to MAX_DEADLINE_SLACK_S, whenever a reply shows it came after

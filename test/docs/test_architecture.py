@@ -103,7 +103,7 @@ def map_of_layers() -> dict:
     return layers
 
 
-# A dotted name without a path: `manager.cycle_begin`, `wire.FRAMERS`, `Goals.check`, `bus.Bus`.
+# A dotted name without a path: `manager.cycle_begin`, `protocol.FRAMERS`, `Goals.check`.
 DOTTED = re.compile(r'^(?P<head>[A-Za-z_]\w*)(?P<attrs>(?:\.[A-Za-z_]\w*)+)(?:\(.*\))?$')
 SKIP_HEADS = {'self', 'ros2', 'rclpy', 'sensor_msgs', 'control_msgs', 'std_msgs', 'os', 'time',
               'threading', 'docs', 'README', 'config', 'arm_sim', 'package', 'setup'}
