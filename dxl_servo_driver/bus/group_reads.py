@@ -270,7 +270,7 @@ class GroupReads:
                                      f'exist in Protocol {framer.version}.0 (use bulk_read)')
         wire.lock.acquire()
         try:
-            if wire.framer is PROTOCOL_2:   # the usual bus: no switch on the cycle's path
+            if wire.framer.sync_read:   # the usual bus: no switch on the cycle's path
                 request, expected, sent_s, written_s = self._send_sync_read(
                     address, length, id_tuple, fast)
             else:

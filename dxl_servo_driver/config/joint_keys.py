@@ -188,13 +188,12 @@ def with_protocol(joint: JointConfig, params: Mapping[str, Any],
     model = joint.model
     protocol = given if given is not None else (
         1.0 if model is not None and model.protocol == 1.0 else bus_protocol)
-    if model is not None and model.protocol == 1.0 and protocol != 1.0:
+    # A model speaks the protocol of its table, and another only through its Protocol Type
+    # register (protocol_version).
+    if model is not None and protocol != model.protocol and not model.has('protocol_version'):
         raise ConfigError(key if given is not None else 'protocol',
-                          f'{model.name} speaks Protocol 1.0 only (joint {joint.name!r})')
-    if model is not None and protocol == 1.0 and model.protocol != 1.0 \
-            and not model.has('protocol_version'):
-        raise ConfigError(key if given is not None else 'protocol',
-                          f'{model.name} speaks Protocol 2.0 only (joint {joint.name!r})')
+                          f'{model.name} speaks Protocol {model.protocol} only '
+                          f'(joint {joint.name!r})')
     # A register the protocol's packets cannot address (1.0's one-byte addresses) is refused now.
     framer = FRAMERS[protocol]
     table = model or models.model_for(xm430.MODEL_NUMBER)

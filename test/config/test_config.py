@@ -98,6 +98,11 @@ def test_operating_mode_defaults_to_position() -> None:
      'has no current mode'),
     ({'wheel.model': 'XL430-W250', 'wheel.registers.current_limit': 100},
      'wheel.registers.current_limit', 'unknown register'),
+    # a protocol the model cannot speak (it has no Protocol Type register to switch)
+    ({'wheel.model': 'AX-12A', 'wheel.protocol': 2.0}, 'wheel.protocol',
+     'AX-12A speaks Protocol 1.0 only'),
+    ({'wheel.model': 'H54-200-S500-R', 'wheel.protocol': 1.0}, 'wheel.protocol',
+     'H54-200-S500-R speaks Protocol 2.0 only'),
     ({'arm.registers.external_port_mode_9': 1}, 'arm.registers.external_port_mode_9',
      'unknown register'),
     # grippers hold with a limited current: current_based_position only
