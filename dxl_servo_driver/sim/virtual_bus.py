@@ -59,7 +59,6 @@ from dxl_servo_driver import protocol
 
 from dxl_servo_driver.models import Model, model_for, model_named, ModelError, xm430
 from dxl_servo_driver.port import set_tty_speed, tty_speed_bps
-from dxl_servo_driver.protocol import protocol1
 from dxl_servo_driver.sim import control
 from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.dynamics import CONTROL_PERIOD_S
@@ -111,14 +110,11 @@ def configure_servos(bus: SimBus, baud_bps: int, return_delay_raw: int | None,
                 if time.monotonic() > deadline_s:
                     raise StartupError(f'servo {servo_id} did not accept {name}={value}')
                 current_bps = model.bauds[bus.read_register(ref, 'baud_rate')]
-                if servo.protocol_version == 1:
-                    packet = protocol1.encode_instruction(
-                        servo_id, protocol1.Instruction1.WRITE,
-                        bytes((item.address,)) + item.encode(value))
-                else:
-                    packet = protocol.encode_instruction(
-                        servo_id, protocol.Instruction.WRITE,
-                        item.address.to_bytes(2, 'little') + item.encode(value))
+                # WRITE in the protocol the servo listens in now (the same code in both).
+                framer = protocol.FRAMERS[float(servo.protocol_version)]
+                packet = framer.encode(
+                    servo_id, protocol.Instruction.WRITE,
+                    framer.address_param(item.address, item.size) + item.encode(value))
                 bus.feed(packet, current_bps)
                 if bus.read_register(ref, name) != value:
                     time.sleep(0.01)
@@ -591,8 +587,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.unplugged:
         for number in range(1, len(args.ids) + 1):
             bus.unplug(f'#{number}')
-    # The adapter's packets are cut by the framing of the protocol the servos speak.
-    framing = 1 if all(servo.protocol_version == 1 for servo in bus.servos()) else 2
+    # The adapter cuts packets by the framing of the protocol the servos speak (a mixed bus:
+    # 2.0's).
+    spoken = {servo.protocol_version for servo in bus.servos()}
+    framing = spoken.pop() if len(spoken) == 1 else 2
     adapter = FaultEngine(seed=args.seed, protocol=framing)
     server = VirtualBusServer(bus, args.timing, args.latency_ms / 1000.0, adapter=adapter)
     trace_files: dict[str, TextIO] = {}
