@@ -24,7 +24,8 @@ from enum import IntEnum
 from typing import Dict, Sequence
 
 from dxl_servo_driver.errors import BadRequest
-from dxl_servo_driver.protocol.protocol2 import Frame, Packet, StreamParser
+from dxl_servo_driver.protocol.protocol2 import (
+    Frame, frame_scanner, FrameLayout, Framer, Packet, StreamParser)
 
 HEADER = b'\xff\xff'
 BROADCAST_ID = 0xFE
@@ -131,6 +132,11 @@ class Frame1(Frame):
     packet, the error byte of a status packet. The caller decides which the frame is.
     """
 
+    @property
+    def framer(self) -> Framer:
+        """Return PROTOCOL_1: this is a Protocol 1.0 packet."""
+        return PROTOCOL_1
+
     def packet(self) -> Packet:
         """Decode the frame as an instruction packet, as a servo's receiver sees it."""
         return Packet(self.servo_id, self.instruction, self.raw[5:-1])
@@ -145,56 +151,14 @@ class Frame1(Frame):
         return self.instruction, self.raw[5:-1]
 
 
-def _partial_header_start(buffer: bytes | bytearray, pos: int) -> int:
-    # A trailing FF may be the first byte of a header still arriving.
-    end = len(buffer)
-    if end - 1 >= pos and buffer[end - 1] == 0xFF:
-        return end - 1
-    return end
-
-
-def scan_frames(buffer: bytes | bytearray, pos: int = 0, max_length: int = MAX_LENGTH,
-                final: bool = False, resync: bool = True) -> tuple[list[Frame], int]:
-    """
-    Return the whole Protocol 1.0 packets in buffer from pos on, and where unconsumed bytes begin.
-
-    Bytes before a header are noise and skipped. A length field below 2 or above max_length
-    cannot be a packet of ours: the header is taken as noise and the scan goes on at the next
-    byte. A run of FF before the id is header padding: the packet starts at its last two FFs
-    (an id is never FF). A packet whose checksum fails is reported (crc_ok False); with resync
-    the scan then looks for a header inside it, without it the whole claimed length is skipped
-    (a servo's receiver). A packet that checks is taken whole, FF FF in its parameters included:
-    there is no stuffing, the length field decides. The returned offset is where an incomplete
-    packet (or a trailing FF) starts, or len(buffer); with final an incomplete packet is noise.
-    """
-    frames: list[Frame] = []
-    end = len(buffer)
-    while True:
-        start = buffer.find(HEADER, pos)
-        if start < 0:
-            return frames, (end if final else _partial_header_start(buffer, pos))
-        # FF FF FF ...: the id cannot be FF, so the header is the last two of the run.
-        while start + 2 < end and buffer[start + 2] == 0xFF:
-            start += 1
-        if start + 4 > end:
-            if final:
-                pos = start + 1
-                continue
-            return frames, start
-        length = buffer[start + 3]
-        if length < 2 or length > max_length:
-            pos = start + 1
-            continue
-        stop = start + 4 + length
-        if stop > end:
-            if final:
-                pos = start + 1
-                continue
-            return frames, start
-        raw = bytes(buffer[start:stop])
-        crc_ok = checksum(raw[2:-1]) == raw[-1]
-        frames.append(Frame1(start, stop, raw[2], raw[4], crc_ok, raw))
-        pos = stop if crc_ok or not resync else start + 1
+# Where a Protocol 1.0 packet keeps what finding it takes (protocol.frame_scanner): FF FF, the id,
+# a one-byte length, then the counted bytes ending in a checksum over all after the header.
+LAYOUT_1 = FrameLayout(HEADER, 2, 3, 1, 2, MAX_LENGTH, checksum, 2, 1, True, Frame1)
+# The whole Protocol 1.0 packets in a buffer (protocol.frame_scanner): a length field below 2 or
+# above max_length (default MAX_LENGTH) is noise. A run of FF before the id is header padding: the
+# packet starts at its last two FFs (an id is never FF). A packet that checks is taken whole, FF
+# FF in its parameters included: there is no stuffing, the length field decides.
+scan_frames = frame_scanner(LAYOUT_1)
 
 
 def decode_packet(data: bytes) -> Packet:
@@ -218,10 +182,11 @@ class StreamParser1(StreamParser):
     """
     Incremental Protocol 1.0 parser (the simulated servos' receiver), as protocol.StreamParser.
 
-    feed() returns the whole packets found, framed by this module's scan_frames() without
-    resync: garbage before a header is skipped, a length below 2 is noise, a packet whose
-    checksum fails is reported with crc_ok False and skipped whole. A partial packet whose next
-    byte comes later than inter_byte_timeout_s is discarded, as the servo's receiver does.
+    feed() returns the whole packets found, framed by this module's scan_frames() (the
+    package's one scan, protocol.frame_scanner, with LAYOUT_1) without resync: garbage before a
+    header is skipped, a length below 2 is noise, a packet whose checksum fails is reported with
+    crc_ok False and skipped whole. A partial packet whose next byte comes later than
+    inter_byte_timeout_s is discarded, as the servo's receiver does.
     """
 
     _scan = staticmethod(scan_frames)
@@ -242,6 +207,11 @@ class Protocol1Framer:
     multi_turn_clear = False
     echo_like_status = True     # a status has no instruction byte (module docstring)
     clean_block = False
+    layout = LAYOUT_1
+    check_name = 'checksum'
+    bad_check_fate = 'refuse it'   # its status has the checksum error bit
+    address_size = 1
+    unanswered: frozenset[int] = frozenset({Instruction1.SYNC_WRITE})
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -285,6 +255,34 @@ class Protocol1Framer:
     def reset_params(self, option: int) -> bytes | None:
         """Return no parameter for option 0xFF (RESET resets everything); None for another."""
         return b'' if option == RESET_ALL else None
+
+    def bulk_read_records(self, params: bytes) -> list[tuple[int, int, int]] | None:
+        """Return the records after the leading 0x00 (length, id, address each); None: no 0x00."""
+        if not params:
+            return None
+        return [(params[at + 1], params[at + 2], params[at])
+                for at in range(1, len(params) - 2, 3)]
+
+    def instruction_name(self, code: int) -> str:
+        """Return the Instruction1's name, or `instruction 0x..`."""
+        try:
+            return Instruction1(code).name
+        except ValueError:
+            return f'instruction 0x{code:02x}'
+
+    def refusal_text(self, error: int) -> str:
+        """Return the refusal bits set, in hex, and their names ('': none)."""
+        refused = error & REFUSAL_MASK
+        return f'0x{refused:02x}: {error_text(refused)}' if refused else ''
+
+    def alert_text(self, error: int) -> str:
+        """Return the hardware state bits set, in hex, and their names ('': none)."""
+        alert = error & ALERT_MASK
+        return f'0x{alert:02x}: {error_text(alert)}' if alert else ''
+
+    def ping_model(self, data: bytes) -> tuple[int, int] | None:
+        """Return None: a ping's answer carries nothing (the model number is read)."""
+        return None
 
 
 PROTOCOL_1 = Protocol1Framer()

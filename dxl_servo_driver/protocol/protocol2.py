@@ -13,7 +13,7 @@ from enum import IntEnum
 import importlib
 import os
 import struct
-from typing import cast, Protocol, Sequence
+from typing import Callable, cast, NamedTuple, Protocol, Sequence
 
 HEADER = b'\xff\xff\xfd\x00'
 BROADCAST_ID = 0xFE
@@ -213,6 +213,11 @@ class Frame:
     crc_ok: bool
     raw: bytes
 
+    @property
+    def framer(self) -> 'Framer':
+        """Return the framer of the protocol this frame is a packet of (its scan found it)."""
+        return PROTOCOL_2
+
     def packet(self) -> Packet:
         """Decode the frame (the error byte is split off for a status packet)."""
         return _packet_from_body(self.servo_id, unstuff(self.raw[7:-2]) if self.crc_ok
@@ -242,56 +247,104 @@ def _packet_from_body(servo_id: int, body: bytes) -> Packet:
     return Packet(servo_id, instruction, bytes(params))
 
 
-def _partial_header_start(buffer: bytes | bytearray, pos: int) -> int:
-    # A trailing FF / FF FF / FF FF FD may be the start of a header still arriving.
+class FrameLayout(NamedTuple):
+    """
+    Where a protocol's packets keep what finding them in a byte stream takes (frame_scanner).
+
+    A packet: header, id, length field, then the bytes the length counts: the instruction (a 1.0
+    status: its error byte), the parameters and the check over raw[check_from:] before it.
+    """
+
+    header: bytes
+    id_at: int              # the id's offset
+    length_at: int          # the length field's offset; the counted bytes follow it
+    length_size: int        # bytes of the length field (little-endian): 1 or 2
+    min_length: int         # a length field below this is noise
+    max_length: int         # and above this, unless the caller bounds it otherwise
+    check: Callable[[bytes], int]   # the check's value of raw[check_from:-check_size]
+    check_from: int
+    check_size: int         # bytes of the check (little-endian): 1 or 2
+    # FF bytes before the id are the header's (1.0: a run of FF, the id never FF); 2.0's
+    # header ends in FD 00, so the search itself finds where it starts.
+    padded_header: bool
+    frame: 'type[Frame]'    # the class of the frames found
+
+
+def _partial_header_start(buffer: bytes | bytearray, pos: int, header: bytes) -> int:
+    # A trailing part of a header (2.0: FF, FF FF, FF FF FD) may be a header still arriving.
     end = len(buffer)
-    for keep in (3, 2, 1):
-        if end - keep >= pos and buffer[end - keep:end] == HEADER[:keep]:
+    if end <= pos or buffer[end - 1] not in header:   # the usual end: a packet's last byte
+        return end
+    for keep in range(len(header) - 1, 0, -1):
+        if end - keep >= pos and buffer[end - keep:end] == header[:keep]:
             return end - keep
     return end
 
 
-def scan_frames(buffer: bytes | bytearray, pos: int = 0,
-                max_length: int = MAX_PACKET_LENGTH, final: bool = False,
-                resync: bool = True) -> tuple[list[Frame], int]:
+def frame_scanner(layout: FrameLayout) -> Callable[..., tuple[list[Frame], int]]:
     """
-    Return the whole packets in buffer from pos on, and where unconsumed bytes begin.
+    Return the scan for whole packets of a layout: the one framing routine of the package.
 
-    This is the one framing routine of the package: the driver's bus and the simulator's
-    receiver both use it. Bytes before a header are noise and skipped. A length field below 3
-    or above max_length cannot be a packet of ours: the header is taken as noise and the scan
-    goes on at the next byte. A packet whose CRC fails is reported (crc_ok False); with resync
-    the scan then looks for a header inside it (noise may have forged a header whose length
-    swallowed a real packet), without it the whole claimed length is skipped (what a servo's
-    receiver does). The returned offset is where an incomplete packet (or a partial header)
-    starts, or len(buffer); with final (no more bytes will come), an incomplete packet is taken
-    as noise and the scan continues past its header.
+    scan(buffer, pos=0, max_length=layout.max_length, final=False, resync=True) returns the
+    whole packets in buffer from pos on, and where unconsumed bytes begin: the bus's and the
+    simulator's, in either protocol (scan_frames, protocol1's). Bytes before a header are noise;
+    so is a header whose length field is below min_length or above max_length: the scan goes on
+    at its next byte. A packet whose check fails is reported (crc_ok False); with resync the scan
+    then looks for a header inside it (noise may have forged a header whose length swallowed a
+    real packet), without it the whole claimed length is skipped (what a servo's receiver does).
+    A packet that checks is taken whole. The offset returned is where an incomplete packet (or a
+    partial header) starts, or len(buffer); with final (no more bytes will come), an incomplete
+    packet is noise too. The layout's facts are bound here once, local names of the scan: it
+    runs on every reply the bus reads and every byte the simulator hears.
     """
-    frames: list[Frame] = []
-    end = len(buffer)
-    while True:
-        start = buffer.find(HEADER, pos)
-        if start < 0:
-            return frames, (end if final else _partial_header_start(buffer, pos))
-        if start + 7 > end:
-            if final:
+    (header, id_at, length_at, length_size, min_length, longest, check, check_from, check_size,
+     padded_header, frame) = layout
+    body_at = length_at + length_size
+    length_high = length_at + 1
+    wide_length = length_size == 2
+    wide_check = check_size == 2
+    check_end = -check_size
+
+    def scan(buffer: bytes | bytearray, pos: int = 0, max_length: int = longest,
+             final: bool = False, resync: bool = True) -> tuple[list[Frame], int]:
+        frames: list[Frame] = []
+        end = len(buffer)
+        while True:
+            start = buffer.find(header, pos)
+            if start < 0:
+                return frames, (end if final else _partial_header_start(buffer, pos, header))
+            if padded_header:
+                while start + id_at < end and buffer[start + id_at] == 0xFF:
+                    start += 1
+            if start + body_at > end:
+                if final:
+                    pos = start + 1
+                    continue
+                return frames, start
+            length = (buffer[start + length_at] | (buffer[start + length_high] << 8)
+                      if wide_length else buffer[start + length_at])
+            if length < min_length or length > max_length:
                 pos = start + 1
                 continue
-            return frames, start
-        length = buffer[start + 5] | (buffer[start + 6] << 8)
-        if length < 3 or length > max_length:
-            pos = start + 1
-            continue
-        stop = start + 7 + length
-        if stop > end:
-            if final:
-                pos = start + 1
-                continue
-            return frames, start
-        raw = bytes(buffer[start:stop])
-        crc_ok = crc16(raw[:-2]) == (raw[-2] | (raw[-1] << 8))
-        frames.append(Frame(start, stop, raw[4], raw[7], crc_ok, raw))
-        pos = stop if crc_ok or not resync else start + 1
+            stop = start + body_at + length
+            if stop > end:
+                if final:
+                    pos = start + 1
+                    continue
+                return frames, start
+            raw = bytes(buffer[start:stop])
+            crc_ok = check(raw[check_from:check_end]) == (
+                raw[-2] | (raw[-1] << 8) if wide_check else raw[-1])
+            frames.append(frame(start, stop, raw[id_at], raw[body_at], crc_ok, raw))
+            pos = stop if crc_ok or not resync else start + 1
+
+    return scan
+
+
+LAYOUT_2 = FrameLayout(HEADER, 4, 5, 2, 3, MAX_PACKET_LENGTH, crc16, 0, 2, False, Frame)
+# The whole Protocol 2.0 packets in a buffer (frame_scanner): a length field below 3 or above
+# max_length (default MAX_PACKET_LENGTH) is noise.
+scan_frames = frame_scanner(LAYOUT_2)
 
 
 def fast_status_size(lengths: Sequence[int]) -> int:
@@ -480,9 +533,10 @@ class Framer(Protocol):
     bus asks the framer rather than its version: the instructions a protocol has (sync read,
     the fast reads, broadcast ping, CLEAR, a reset's options), how an address and a length are
     written (2.0: two bytes each; 1.0: one, and what does not fit is refused: BadRequest), how
-    a ping's answer gives the model number, how an error byte reads. The instruction codes the
+    a ping's answer gives the model number, how an error byte reads; and, for the trace decoder
+    (tool/trace_decode.py), how a request's parameters read back. The instruction codes the
     bus sends in both (PING, READ, WRITE, FACTORY_RESET/RESET, REBOOT, SYNC_WRITE, BULK_READ)
-    are the same bytes in both protocols.
+    are the same bytes in both protocols, as are ACTION's and REG_WRITE's.
     """
 
     version: int                # the protocol's major version: 1 or 2 (for messages)
@@ -503,6 +557,12 @@ class Framer(Protocol):
     # Its status packets have the layout the bus's whole-block parses compare byte for byte
     # (group_reads.BlockTemplate, the clean parse of a sync or bulk read): 2.0's.
     clean_block: bool
+    layout: FrameLayout         # where its packets keep what its scan reads (frame_scanner)
+    check_name: str             # what a packet's check is called: 'CRC' or 'checksum'
+    bad_check_fate: str         # what a servo does with a request whose check fails: for a person
+    address_size: int           # bytes of an address, and of a length, in a request's parameters
+    # Instructions no servo answers, even sent to one id (besides any sent to the broadcast id).
+    unanswered: frozenset[int]
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -534,6 +594,21 @@ class Framer(Protocol):
     def reset_params(self, option: int) -> bytes | None:
         """Return the parameters of a FACTORY_RESET with option; None: the protocol has none."""
 
+    def bulk_read_records(self, params: bytes) -> list[tuple[int, int, int]] | None:
+        """Return a BULK_READ's (id, address, length) records; None: params cannot be one."""
+
+    def instruction_name(self, code: int) -> str:
+        """Return the name of an instruction code, or `instruction 0x..` for one it has not."""
+
+    def refusal_text(self, error: int) -> str:
+        """Return the refusal an error byte reports, code and meaning, for a person ('': none)."""
+
+    def alert_text(self, error: int) -> str:
+        """Return the hardware state an error byte reports, for a person ('': none)."""
+
+    def ping_model(self, data: bytes) -> tuple[int, int] | None:
+        """Return (model number, firmware) a ping's answer carries; None when it carries none."""
+
 
 class Protocol2Framer:
     """Protocol 2.0 framing (this module's functions), as the bus's Framer."""
@@ -550,6 +625,11 @@ class Protocol2Framer:
     multi_turn_clear = True
     echo_like_status = False    # a status has instruction 0x55: no packet we send has
     clean_block = True
+    layout = LAYOUT_2
+    check_name = 'CRC'
+    bad_check_fate = 'ignore it'
+    address_size = 2
+    unanswered: frozenset[int] = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})
 
     def encode(self, servo_id: int, instruction: int, params: bytes = b'') -> bytes:
         """Return a whole instruction packet as it goes on the wire."""
@@ -586,6 +666,33 @@ class Protocol2Framer:
     def reset_params(self, option: int) -> bytes | None:
         """Return the option byte (0xFF all, 0x01 all but the id, 0x02 but id and baud)."""
         return bytes((option,))
+
+    def bulk_read_records(self, params: bytes) -> list[tuple[int, int, int]] | None:
+        """Return the records of id, address (2 bytes), length (2 bytes) (FAST_BULK_READ's too)."""
+        return [cast(tuple[int, int, int], struct.unpack_from('<BHH', params, at))
+                for at in range(0, len(params) - 4, 5)]
+
+    def instruction_name(self, code: int) -> str:
+        """Return the Instruction's name, or `instruction 0x..`."""
+        try:
+            return Instruction(code).name
+        except ValueError:
+            return f'instruction 0x{code:02x}'
+
+    def refusal_text(self, error: int) -> str:
+        """Return the ErrorCode's number and text ('unknown' for another number; '': none)."""
+        code = error & ERROR_CODE_MASK
+        return f'{code}: {ERROR_TEXT.get(code, "unknown")}' if code else ''
+
+    def alert_text(self, error: int) -> str:
+        """Return that the alert bit is set: the Hardware Error Status register says which."""
+        return '(hardware error: read hardware_error_status)' if error & ALERT_BIT else ''
+
+    def ping_model(self, data: bytes) -> tuple[int, int] | None:
+        """Return the model number (2 bytes) and firmware (1) a ping's answer starts with."""
+        if len(data) < self.ping_reply_params:
+            return None
+        return data[0] | (data[1] << 8), data[2]
 
 
 PROTOCOL_2 = Protocol2Framer()
