@@ -290,7 +290,7 @@ class Decoder:
     def finish(self) -> Iterator[str]:
         """Return the lines of what is left at the end: bytes, requests never answered."""
         yield from self._received(self._rx_t, final=True)
-        for request in self.pending:
+        for request in list(self.pending):   # _unanswered takes each out
             yield from self._unanswered(request, 'the trace ends')
         self.pending = []
 

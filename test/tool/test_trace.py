@@ -362,3 +362,13 @@ def test_a_mixed_trace_has_each_frame_read_as_its_header_says(tmp_path: pathlib.
     assert '       0.000 ms >  10 bytes that are no packet: ff ff fd 00 01 03 00 01 19 4e' in \
         forced.stdout.splitlines()
     assert decoded_instructions(forced.stdout) == ['PING', 'READ', 'READ']
+
+
+def test_every_request_unanswered_when_the_trace_ends_is_named() -> None:
+    # Three requests wait when the trace ends: each is reported, none skipped.
+    lines = ['1000 baud 1000000'] + [
+        f'{1000 + 100 * servo_id} tx {encode_instruction(servo_id, Instruction.PING).hex(" ")}'
+        for servo_id in (2, 3, 4)]
+    text, _ = decode(read_trace(lines, 'made.trace'))
+    unanswered = [line for line in text if 'NO REPLY' in line and 'the trace ends' in line]
+    assert [line.split('from id ')[1].split()[0] for line in unanswered] == ['2', '3', '4']
