@@ -627,7 +627,7 @@ class Protocol2Framer:
     clean_block = True
     layout = LAYOUT_2
     check_name = 'CRC'
-    bad_check_fate = 'ignore it'
+    bad_check_fate = 'refuse it'   # its status has the CRC error (ErrorCode.CRC)
     address_size = 2
     unanswered: frozenset[int] = frozenset({Instruction.SYNC_WRITE, Instruction.BULK_WRITE})
 

@@ -372,3 +372,16 @@ def test_every_request_unanswered_when_the_trace_ends_is_named() -> None:
     text, _ = decode(read_trace(lines, 'made.trace'))
     unanswered = [line for line in text if 'NO REPLY' in line and 'the trace ends' in line]
     assert [line.split('from id ')[1].split()[0] for line in unanswered] == ['2', '3', '4']
+
+
+def test_a_request_with_a_wrong_check_says_the_servo_refuses_it() -> None:
+    # Both protocols' servos answer such a request with their check's error (2.0: the CRC
+    # error code; 1.0: the checksum bit), as the simulator does: the decoder says so.
+    ping_2 = bytearray(encode_instruction(1, Instruction.PING))
+    ping_2[-1] ^= 0x01
+    ping_1 = bytearray(protocol1.encode_instruction(1, Instruction1.PING))
+    ping_1[-1] ^= 0x01
+    for packet, protocol, check in ((ping_2, 2, 'CRC'), (ping_1, 1, 'CHECKSUM')):
+        text, _ = decode(read_trace(['1000 baud 1000000', f'1100 tx {packet.hex(" ")}'],
+                                    'made.trace'), protocol=protocol)
+        assert any(f'({check} WRONG: the servo will refuse it)' in line for line in text), text
