@@ -27,14 +27,13 @@ import threading
 import time
 from typing import Any, Callable, Optional
 
-from dxl_servo_driver.protocol import HEADER, MAX_PACKET_LENGTH, protocol1
+from dxl_servo_driver.protocol import Framer, FRAMERS, HEADER, MAX_PACKET_LENGTH
 
 # Replies a late copy is chosen from.
 LATE_HISTORY = 20
 # Bytes of an incomplete packet (or a trailing header prefix) wait this long for the rest, then
 # pass as they are; as the servos' own receiver, a gap this long ends a packet.
 PARTIAL_FLUSH_S = 0.01
-HEAD = len(HEADER) + 3  # header, id and the two length bytes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,10 +55,15 @@ class Framing:
         return int.from_bytes(field, 'little')
 
 
-FRAMINGS = {
-    2: Framing(HEADER, HEAD, 2, 3, MAX_PACKET_LENGTH, len(HEADER)),
-    1: Framing(protocol1.HEADER, len(protocol1.HEADER) + 2, 1, 2, protocol1.MAX_LENGTH, 1),
-}
+def _framing(framer: Framer) -> Framing:
+    """Return how the adapter cuts a protocol's packets, from its framer's frame layout."""
+    layout = framer.layout
+    return Framing(layout.header, layout.length_at + layout.length_size, layout.length_size,
+                   layout.min_length, layout.max_length,
+                   1 if layout.padded_header else len(layout.header))
+
+
+FRAMINGS = {framer.version: _framing(framer) for framer in FRAMERS.values()}
 
 
 def _check_probability(name: str, value: float) -> None:

@@ -16,12 +16,10 @@ import collections
 import errno
 import threading
 import time
-from typing import Callable, Iterable, TYPE_CHECKING
+from typing import Callable, Iterable
 
+from dxl_servo_driver.sim.bus import SimBus
 from dxl_servo_driver.sim.timing import byte_time_s, hybrid_wait, LatenessStats, WireScheduler
-
-if TYPE_CHECKING:  # pragma: no cover - typing only; avoids an import cycle at run time
-    from dxl_servo_driver.sim.bus import SimBus
 
 TIMINGS = ('instant', 'wire')
 # The stock PortHandler's packet timeout adds twice the FTDI default latency timer (16 ms) and
@@ -46,7 +44,7 @@ class SimPortDisconnected(OSError):
 class SimPortHandler:
     """A serial port whose far end is a SimBus."""
 
-    def __init__(self, bus: 'SimBus', port_name: str = 'sim', baudrate: int = 57600,
+    def __init__(self, bus: SimBus, port_name: str = 'sim', baudrate: int = 57600,
                  timing: str = 'instant', latency_s: float = 0.0,
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] | None = None) -> None:
